@@ -1,0 +1,150 @@
+"""The SG environment type and its ``env.json`` file (format ``ebr-sg/1``).
+
+``SGEnvironment`` holds K lobes as numpy arrays (world frame, z-up):
+
+* ``axis``: (K, 3) float32, unit vectors;
+* ``sharpness``: (K,) float32, λ > 0;
+* ``amplitude``: (K, 3) float32, RGB μ ≥ 0.
+
+Radiance ``L(ω) = Σ_k μ_k exp(λ_k (ξ_k·ω − 1))``. K = 0 is a valid, all-black environment.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+from .fsutil import atomic_write_text
+
+FORMAT = "ebr-sg/1"
+
+
+@dataclass(frozen=True)
+class SGEnvironment:
+    axis: np.ndarray
+    sharpness: np.ndarray
+    amplitude: np.ndarray
+
+    def __post_init__(self):
+        axis = np.asarray(self.axis, dtype=np.float64).reshape(-1, 3)
+        sharp = np.asarray(self.sharpness, dtype=np.float64).reshape(-1)
+        amp = np.asarray(self.amplitude, dtype=np.float64)
+        if amp.ndim == 1:
+            amp = np.repeat(amp[:, None], 3, axis=1)
+        amp = amp.reshape(-1, 3)
+        k = axis.shape[0]
+        if sharp.shape[0] != k or amp.shape[0] != k:
+            raise InputError(f"SG environment: {k} axes, {sharp.shape[0]} sharpness values and "
+                             f"{amp.shape[0]} amplitudes; give one of each per lobe")
+        if not (np.all(np.isfinite(axis)) and np.all(np.isfinite(sharp)) and np.all(np.isfinite(amp))):
+            raise InputError("SG environment: NaN or Inf in the lobe parameters; give finite values")
+        norms = np.linalg.norm(axis, axis=1)
+        if np.any(norms < 1e-8):
+            raise InputError("SG environment: a lobe axis has zero length; give unit axes")
+        if np.any(sharp <= 0):
+            raise InputError("SG environment: sharpness must be > 0 for every lobe")
+        if np.any(amp < 0):
+            raise InputError("SG environment: amplitudes must be >= 0 (RGB) for every lobe")
+        object.__setattr__(self, "axis", (axis / norms[:, None]).astype(np.float32))
+        object.__setattr__(self, "sharpness", sharp.astype(np.float32))
+        object.__setattr__(self, "amplitude", amp.astype(np.float32))
+
+    @property
+    def num_lobes(self) -> int:
+        return int(self.axis.shape[0])
+
+    @staticmethod
+    def empty() -> SGEnvironment:
+        return SGEnvironment(np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)))
+
+    def scaled(self, factor: float) -> SGEnvironment:
+        return SGEnvironment(self.axis, self.sharpness, self.amplitude * factor)
+
+    def rotated_z(self, angle: float) -> SGEnvironment:
+        c, s = math.cos(angle), math.sin(angle)
+        rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        return SGEnvironment(self.axis @ rot.T, self.sharpness, self.amplitude)
+
+    def concat(self, other: SGEnvironment) -> SGEnvironment:
+        return SGEnvironment(np.concatenate([self.axis, other.axis]),
+                             np.concatenate([self.sharpness, other.sharpness]),
+                             np.concatenate([self.amplitude, other.amplitude]))
+
+    def energy(self) -> np.ndarray:
+        """Per-lobe integral ∫G dω, luminance-weighted (K,): used to pick lobes when sampling."""
+        lam = self.sharpness.astype(np.float64)
+        integ = 2 * np.pi * (-np.expm1(-2 * lam)) / lam
+        lum = self.amplitude.astype(np.float64) @ np.array([0.2126, 0.7152, 0.0722])
+        return integ * lum
+
+    def eval(self, directions: np.ndarray) -> np.ndarray:
+        """Radiance (…, 3) in unit directions (…, 3), numpy float64."""
+        d = np.asarray(directions, dtype=np.float64)
+        cos = d @ self.axis.astype(np.float64).T  # (..., K)
+        w = np.exp(self.sharpness.astype(np.float64) * (cos - 1.0))
+        return w @ self.amplitude.astype(np.float64)
+
+    # -- env.json --------------------------------------------------------------------------
+    def to_json(self) -> dict:
+        return {
+            "format": FORMAT,
+            "up": "+z",
+            "lobes": [
+                {"axis": [float(v) for v in a], "sharpness": float(l), "amplitude": [float(v) for v in m]}
+                for a, l, m in zip(self.axis, self.sharpness, self.amplitude)
+            ],
+        }
+
+    @staticmethod
+    def from_json(data: dict, source: str = "env.json") -> SGEnvironment:
+        fix = f"{source}: expected {{\"format\": \"{FORMAT}\", \"up\": \"+z\", \"lobes\": [...]}}"
+        if not isinstance(data, dict):
+            raise InputError(f"{fix}; got a {type(data).__name__}")
+        if data.get("format") != FORMAT:
+            raise InputError(f"{source}: 'format' must be \"{FORMAT}\" (got {data.get('format')!r})")
+        if data.get("up", "+z") != "+z":
+            raise InputError(f"{source}: only \"up\": \"+z\" is supported (got {data.get('up')!r})")
+        lobes = data.get("lobes")
+        if not isinstance(lobes, list):
+            raise InputError(f"{fix}; 'lobes' is missing or not a list")
+        axes, sharp, amp = [], [], []
+        for i, lobe in enumerate(lobes):
+            try:
+                a = [float(v) for v in lobe["axis"]]
+                lam = float(lobe["sharpness"])
+                m = lobe["amplitude"]
+                m = [float(m)] * 3 if isinstance(m, (int, float)) else [float(v) for v in m]
+            except (KeyError, TypeError, ValueError) as exc:
+                raise InputError(f"{source}: lobe {i} needs 'axis' [x,y,z], 'sharpness' λ>0 and "
+                                 f"'amplitude' [r,g,b] ({type(exc).__name__}: {exc})") from None
+            if len(a) != 3 or len(m) != 3:
+                raise InputError(f"{source}: lobe {i}: 'axis' and 'amplitude' need 3 numbers each")
+            axes.append(a)
+            sharp.append(lam)
+            amp.append(m)
+        if not lobes:
+            return SGEnvironment.empty()
+        try:
+            return SGEnvironment(np.array(axes), np.array(sharp), np.array(amp))
+        except InputError as exc:
+            raise InputError(f"{source}: {exc}") from None
+
+    def save(self, path: str | Path) -> None:
+        atomic_write_text(path, json.dumps(self.to_json(), indent=1) + "\n")
+
+    @staticmethod
+    def load(path: str | Path) -> SGEnvironment:
+        path = Path(path)
+        if not path.is_file():
+            raise InputError(f"{path}: no such SG environment file; give an existing env.json")
+        try:
+            data = json.loads(path.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise InputError(f"{path}: malformed JSON ({exc.msg if hasattr(exc, 'msg') else exc}); "
+                             f"fix the file or regenerate it") from None
+        return SGEnvironment.from_json(data, source=str(path))
