@@ -1,0 +1,1 @@
+"""One module per ``ebr`` subcommand (see :mod:`ebr_mitsuba.cli`)."""
