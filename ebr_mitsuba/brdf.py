@@ -159,7 +159,7 @@ def brdf_pdf(n, l, v, diffuse, specular, roughness):
     return dr.select((cl > 0.0) & (l.z > 0.0) & (dr.dot(n, v) > 0.0) & (v.z > 0.0), pdf, 0.0)
 
 
-def brdf_sample(n, v, diffuse, specular, roughness, sample1, sample2):
+def brdf_sample(n, v, diffuse, specular, roughness, sample1, sample2, fresnel: str = "schlick"):
     """Sample ``l`` given ``v``: returns ``(l, pdf, weight)`` with ``weight = f·cos/pdf`` (RGB).
 
     ``sample1`` (float) picks the lobe, ``sample2`` (2-vector) places the direction.
@@ -184,7 +184,7 @@ def brdf_sample(n, v, diffuse, specular, roughness, sample1, sample2):
     l_loc = dr.select(use_spec, l_spec_loc, l_diff_loc)
     l = dr.normalize(_from_local(s, t, n, l_loc))
     pdf = brdf_pdf(n, l, v, diffuse, specular, roughness)
-    f = brdf_eval_cos(n, l, v, diffuse, specular, roughness)
+    f = brdf_eval_cos(n, l, v, diffuse, specular, roughness, fresnel)
     weight = dr.select(pdf > 0.0, f / dr.maximum(pdf, 1e-30), 0.0)
     return l, pdf, weight
 

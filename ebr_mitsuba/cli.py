@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.util
 import sys
 
 from .errors import EbrError
@@ -20,8 +21,17 @@ COMMANDS = (
     "demo",
     "render",
     "capture",
+    "generate",
+    "dataset",
+    "fit-env",
+    "exemplars",
+    "extract-sg",
+    "select-exemplars",
+    "estimate",
     "validate",
     "bench",
+    "train",
+    "eval",
 )
 
 
@@ -34,7 +44,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="Mitsuba variant (default: $EBR_VARIANT or llvm_ad_rgb; cuda_ad_rgb where available)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMANDS:
-        module = importlib.import_module(f".commands.{name.replace('-', '_')}", __package__)
+        modname = f"{__package__}.commands.{name.replace('-', '_')}"
+        if importlib.util.find_spec(modname) is None:  # command not built in this version
+            continue
+        module = importlib.import_module(modname)
         p = sub.add_parser(module.NAME, help=module.HELP, description=module.__doc__,
                            formatter_class=argparse.RawDescriptionHelpFormatter)
         module.add_arguments(p)

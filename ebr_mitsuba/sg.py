@@ -23,8 +23,15 @@ FOUR_PI = 4.0 * math.pi
 
 
 def sg_eval(axis, sharpness, amplitude, w):
-    """Value of the lobe in direction ``w`` (unit): ``μ exp(λ(ξ·w − 1))``."""
-    return amplitude * dr.exp(sharpness * (dr.dot(axis, w) - 1.0))
+    """Value of the lobe in direction ``w`` (unit): ``μ exp(λ(ξ·w − 1))``.
+
+    ``ξ·w − 1`` is computed as ``−‖ξ − w‖²/2`` (equal for unit vectors, no cancellation near the
+    axis, which matters for λ ≥ 1e4)."""
+    return amplitude * dr.exp(sharpness * _cos_minus_one(axis, w))
+
+
+def _cos_minus_one(axis, w):
+    return -0.5 * dr.squared_norm(axis - w)
 
 
 def sg_integral(sharpness, amplitude):
@@ -139,4 +146,4 @@ def vmf_sample(axis, sharpness, sample):
 def vmf_pdf(axis, sharpness, w):
     """Solid-angle density of :func:`vmf_sample`: ``λ/(2π(1 − e^{−2λ})) · exp(λ(ξ·ω − 1))``."""
     lam = dr.maximum(sharpness, 1e-6)
-    return dr.exp(lam * (dr.dot(axis, w) - 1.0)) / (TWO_PI * one_minus_exp_neg2_over(lam))
+    return dr.exp(lam * _cos_minus_one(axis, w)) / (TWO_PI * one_minus_exp_neg2_over(lam))

@@ -63,7 +63,10 @@ class SVBRDF:
         length = np.linalg.norm(n, axis=-1, keepdims=True)
         if float(length.min()) < 1e-6:
             raise InputError(f"{src}: normal map has zero-length normals; fix the map")
-        object.__setattr__(self, "normal", (n / length).astype(np.float32))
+        # Renormalise only where needed, so rebuilding from unit normals is bit-exact (idempotent).
+        off = np.abs(length - 1.0) > 1e-6
+        n = np.where(off, n / length, n).astype(np.float32)
+        object.__setattr__(self, "normal", n)
         object.__setattr__(self, "diffuse", np.clip(d, 0, 1))
         object.__setattr__(self, "specular", np.clip(s, 0, 1))
         object.__setattr__(self, "roughness", np.clip(r, 0, 1))

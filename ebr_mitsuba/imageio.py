@@ -1,0 +1,379 @@
+"""Image files in and out: EXR, Radiance HDR, PNG and JPEG (DESIGN §3 "Images").
+
+Every image crossing this boundary is a **linear float32 numpy array of shape (H, W, C)**, row 0
+at the top; C = 3 for RGB and C = 1 for one channel (grey, roughness, luminance). Alpha is never
+returned: an RGBA or grey+alpha file gives its colour channels only.
+
+============  ================================  ================================================
+format        reader / writer                   notes
+============  ================================  ================================================
+``.exr``      :func:`read_exr` / :func:`write_exr`  OpenEXR 3.x package; float32 out (half → float32),
+                                                ZIP-compressed float32 in; bit-exact round trip
+``.hdr``      :func:`read_hdr`                  Radiance RGBE through ``mitsuba.Bitmap`` (OpenEXR
+                                                cannot read it); linear RGB
+``.png``      :func:`read_ldr` / :func:`write_png`  8- or 16-bit through ``mitsuba.Bitmap``
+                                                (libpng, full 16-bit precision)
+``.jpg``      :func:`read_ldr`                  8-bit through Pillow (strict: a truncated file
+                                                is an error, not a grey stripe)
+============  ================================  ================================================
+
+LDR values are decoded with colour-science's sRGB EOTF (``colorspace="srgb"``, the default) or
+taken as linear code values ``v / (2^bits − 1)`` (``colorspace="linear"``: normal, roughness and
+other data maps). :func:`read_image` dispatches on the suffix.
+
+Validation (readers): a missing, unreadable or truncated file, a channel count other than
+``expect_channels``, a size other than ``expect_shape = (H, W)`` and NaN/Inf pixels (unless
+``allow_nonfinite=True``) each raise :class:`~ebr_mitsuba.errors.InputError` with one line that
+names the file and the fix. Writers are atomic (:func:`ebr_mitsuba.fsutil.atomic_path`) and
+synchronous; a bad array passed by code is a ``ValueError``.
+
+:func:`resize_area` resamples an image by exact area averaging (box filter of the footprint).
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from .errors import ConfigError, InputError
+from .fsutil import atomic_path
+
+COLORSPACES = ("srgb", "linear")
+EXR_SUFFIXES = (".exr",)
+HDR_SUFFIXES = (".hdr",)
+PNG_SUFFIXES = (".png",)
+JPEG_SUFFIXES = (".jpg", ".jpeg")
+IMAGE_SUFFIXES = EXR_SUFFIXES + HDR_SUFFIXES + PNG_SUFFIXES + JPEG_SUFFIXES
+
+
+# -- colour-science ---------------------------------------------------------------------------------
+
+@functools.cache
+def _colour():
+    """colour-science, imported once. Its import warns that SciPy is absent (we need no SciPy
+    feature); that one warning is silenced here so that it does not reach users or strict tests."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        import colour
+    return colour
+
+
+def srgb_to_linear(values: np.ndarray) -> np.ndarray:
+    """sRGB-encoded values in [0, 1] → linear (colour-science's sRGB EOTF), float32, any shape."""
+    return np.asarray(_colour().models.eotf_sRGB(np.asarray(values, np.float64)), np.float32)
+
+
+def linear_to_srgb(values: np.ndarray) -> np.ndarray:
+    """Linear values in [0, 1] → sRGB-encoded (inverse sRGB EOTF), float32, any shape."""
+    return np.asarray(_colour().models.eotf_inverse_sRGB(np.asarray(values, np.float64)), np.float32)
+
+
+@functools.cache
+def _decode_lut(bits: int, colorspace: str) -> np.ndarray:
+    """float32 value of every ``bits``-bit code: exact colour-science decoding, applied by lookup."""
+    codes = np.arange(2 ** bits, dtype=np.float64) / (2 ** bits - 1)
+    lut = srgb_to_linear(codes) if colorspace == "srgb" else codes.astype(np.float32)
+    lut.setflags(write=False)
+    return lut
+
+
+# -- shared checks ----------------------------------------------------------------------------------
+
+def _check_colorspace(colorspace: str) -> None:
+    if colorspace not in COLORSPACES:
+        raise ConfigError(f"unknown colour space {colorspace!r}; use 'srgb' (photos, albedo) or "
+                          f"'linear' (normal, roughness and other data maps)")
+
+
+def _existing_file(path: str | os.PathLike) -> Path:
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path}: is a directory; give an image file")
+    if not path.is_file():
+        raise InputError(f"{path}: no such file; check the path")
+    return path
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    line = text[0] if text else type(exc).__name__
+    return line if len(line) <= 160 else line[:157] + "..."
+
+
+def _unreadable(path: Path, kind: str, exc: BaseException) -> InputError:
+    return InputError(f"{path}: cannot read it as {kind} ({_first_line(exc)}); the file is truncated "
+                      f"or not {kind}: re-export or re-download it")
+
+
+def check_image(image: np.ndarray, source: str | os.PathLike, *, expect_channels: int | None = None,
+                expect_shape: tuple[int, int] | None = None, allow_nonfinite: bool = False) -> np.ndarray:
+    """Validate an (H, W, C) image read from ``source``; return it unchanged.
+
+    Raises :class:`InputError` naming ``source`` for a channel count other than
+    ``expect_channels``, a size other than ``expect_shape = (H, W)`` and (unless
+    ``allow_nonfinite``) NaN or Inf pixels.
+    """
+    h, w, c = image.shape
+    if expect_channels is not None and c != expect_channels:
+        what = {1: "a single-channel (grey) image", 3: "an RGB image"}.get(expect_channels,
+                                                                         f"{expect_channels} channels")
+        raise InputError(f"{source}: has {c} channel{'s' if c != 1 else ''}; expected {what}")
+    if expect_shape is not None and (h, w) != tuple(int(v) for v in expect_shape):
+        eh, ew = (int(v) for v in expect_shape)
+        raise InputError(f"{source}: is {w}x{h} pixels; expected {ew}x{eh}: resample it to that size")
+    if not allow_nonfinite:
+        bad = ~np.isfinite(image)
+        if bad.any():
+            i, j, _ = np.argwhere(bad)[0]
+            n = int(bad.any(axis=-1).sum())
+            raise InputError(f"{source}: {n} pixel{'s' if n != 1 else ''} NaN or Inf (first at row {i}, "
+                             f"column {j}); fix or regenerate the image")
+    return image
+
+
+# -- EXR --------------------------------------------------------------------------------------------
+
+def _default_exr_channels(names: Sequence[str], path: Path) -> tuple[str, ...]:
+    if {"R", "G", "B"} <= set(names):
+        return ("R", "G", "B")
+    if "Y" in names:
+        return ("Y",)
+    if len(names) == 1:
+        return (names[0],)
+    raise InputError(f"{path}: has channels {', '.join(sorted(names))} but no R,G,B or Y; name the "
+                     f"channels to read")
+
+
+def read_exr(path: str | os.PathLike, channels: str | Sequence[str] | None = None, *,
+             expect_channels: int | None = None, expect_shape: tuple[int, int] | None = None,
+             allow_nonfinite: bool = False) -> np.ndarray:
+    """Read an OpenEXR file (first part) as float32 (H, W, C).
+
+    ``channels``: the channel names to stack, in order (a str names one channel); default R,G,B
+    when present, else Y, else the file's only channel. Half and uint channels become float32.
+    """
+    import OpenEXR
+
+    path = _existing_file(path)
+    try:
+        with OpenEXR.File(str(path), separate_channels=True) as exr:
+            found = {name: ch.pixels for name, ch in exr.channels().items()}
+    except (RuntimeError, ValueError, OSError, TypeError) as exc:
+        raise _unreadable(path, "OpenEXR", exc) from None
+    if isinstance(channels, str):
+        channels = (channels,)
+    names = tuple(channels) if channels is not None else _default_exr_channels(tuple(found), path)
+    missing = [n for n in names if n not in found]
+    if missing:
+        raise InputError(f"{path}: has no channel {missing[0]!r} (it has {', '.join(sorted(found))}); "
+                         f"name existing channels")
+    image = np.stack([np.asarray(found[n], dtype=np.float32) for n in names], axis=-1)
+    return check_image(image, path, expect_channels=expect_channels, expect_shape=expect_shape,
+                       allow_nonfinite=allow_nonfinite)
+
+
+def _as_hwc(array, what: str) -> np.ndarray:
+    a = np.asarray(array)
+    if a.ndim == 2:
+        a = a[..., None]
+    if a.ndim != 3 or a.shape[0] == 0 or a.shape[1] == 0 or a.shape[2] == 0:
+        raise ValueError(f"{what}: array has shape {np.shape(array)}; expected (H, W) or (H, W, C)")
+    return a
+
+
+def write_exr(path: str | os.PathLike, array: np.ndarray, channels: Sequence[str] | None = None) -> Path:
+    """Write (H, W), (H, W, 1), (H, W, 3) or (H, W, C) as a float32, ZIP-compressed EXR.
+
+    Default channel names: ``Y`` for one channel, ``R, G, B`` for three, ``R, G, B, A`` for
+    four; other counts need ``channels``. Atomic and synchronous; returns the path.
+    """
+    import OpenEXR
+
+    a = _as_hwc(array, f"write_exr {path}").astype(np.float32)
+    c = a.shape[2]
+    if channels is None:
+        defaults = {1: ("Y",), 3: ("R", "G", "B"), 4: ("R", "G", "B", "A")}
+        if c not in defaults:
+            raise ValueError(f"write_exr {path}: {c} channels need explicit channel names")
+        channels = defaults[c]
+    channels = tuple(channels)
+    if len(channels) != c or len(set(channels)) != c:
+        raise ValueError(f"write_exr {path}: {c} channels but names {channels}")
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    pixels = {name: np.ascontiguousarray(a[..., k]) for k, name in enumerate(channels)}
+    path = Path(path)
+    with atomic_path(path) as tmp, OpenEXR.File(header, pixels) as exr:
+        exr.write(str(tmp))
+    return path
+
+
+# -- Radiance HDR -----------------------------------------------------------------------------------
+
+def read_hdr(path: str | os.PathLike, *, expect_channels: int | None = None,
+             expect_shape: tuple[int, int] | None = None, allow_nonfinite: bool = False) -> np.ndarray:
+    """Read a Radiance RGBE ``.hdr`` file as linear float32 (H, W, 3) (through ``mitsuba.Bitmap``)."""
+    import mitsuba as mi
+
+    path = _existing_file(path)
+    try:
+        bitmap = mi.Bitmap(str(path))
+        bitmap = bitmap.convert(mi.Bitmap.PixelFormat.RGB, mi.Struct.Type.Float32, srgb_gamma=False)
+        image = np.array(bitmap, dtype=np.float32, copy=True)
+    except (RuntimeError, ValueError, OSError) as exc:
+        raise _unreadable(path, "Radiance HDR", exc) from None
+    return check_image(image.reshape(image.shape[0], image.shape[1], -1), path,
+                       expect_channels=expect_channels, expect_shape=expect_shape,
+                       allow_nonfinite=allow_nonfinite)
+
+
+# -- PNG / JPEG ---------------------------------------------------------------------------------------
+
+def _read_png_codes(path: Path) -> tuple[np.ndarray, int]:
+    """Integer codes (H, W, C) without alpha and their bit depth (8 or 16)."""
+    import mitsuba as mi
+
+    try:
+        bitmap = mi.Bitmap(str(path))
+        codes = np.array(bitmap, copy=True)
+        pixel_format = bitmap.pixel_format()
+    except (RuntimeError, ValueError, OSError) as exc:
+        raise _unreadable(path, "PNG", exc) from None
+    if codes.dtype not in (np.uint8, np.uint16):
+        raise InputError(f"{path}: PNG with {codes.dtype} samples; give an 8- or 16-bit PNG")
+    if codes.ndim == 2:
+        codes = codes[..., None]
+    if pixel_format in (mi.Bitmap.PixelFormat.YA, mi.Bitmap.PixelFormat.RGBA):
+        codes = codes[..., :-1]
+    return codes, 8 * codes.dtype.itemsize
+
+
+def _read_jpeg_codes(path: Path) -> tuple[np.ndarray, int]:
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            if im.format != "JPEG":
+                raise OSError(f"file holds {im.format}, not JPEG")
+            if im.mode not in ("L", "RGB"):
+                im = im.convert("RGB")
+            im.load()
+            codes = np.array(im, dtype=np.uint8, copy=True)
+    except (OSError, ValueError, SyntaxError) as exc:
+        raise _unreadable(path, "JPEG", exc) from None
+    if codes.ndim == 2:
+        codes = codes[..., None]
+    return codes, 8
+
+
+def read_ldr(path: str | os.PathLike, colorspace: str = "srgb", *, expect_channels: int | None = None,
+             expect_shape: tuple[int, int] | None = None) -> np.ndarray:
+    """Read an 8- or 16-bit PNG or an 8-bit JPEG as float32 (H, W, C), C = 1 or 3, in [0, 1].
+
+    ``colorspace="srgb"`` decodes with colour-science's sRGB EOTF (photos, albedo);
+    ``"linear"`` gives ``code / (2^bits − 1)`` (data maps). 16-bit PNGs keep all 16 bits.
+    """
+    _check_colorspace(colorspace)
+    path = _existing_file(path)
+    suffix = path.suffix.lower()
+    if suffix in PNG_SUFFIXES:
+        codes, bits = _read_png_codes(path)
+    elif suffix in JPEG_SUFFIXES:
+        codes, bits = _read_jpeg_codes(path)
+    else:
+        raise InputError(f"{path}: not a PNG or JPEG file name; use .png, .jpg or .jpeg")
+    image = _decode_lut(bits, colorspace)[codes]
+    return check_image(image, path, expect_channels=expect_channels, expect_shape=expect_shape)
+
+
+def write_png(path: str | os.PathLike, linear: np.ndarray, encode: str = "srgb", bits: int = 8) -> Path:
+    """Write a linear (H, W), (H, W, 1) or (H, W, 3) image as an 8- or 16-bit PNG, atomically.
+
+    Values are clipped to [0, 1], sRGB-encoded (``encode="srgb"``, the file is tagged sRGB) or
+    kept linear (``encode="linear"``, for data maps such as (n+1)/2 normals), then rounded to
+    the nearest code. Returns the path.
+    """
+    import mitsuba as mi
+
+    _check_colorspace(encode)
+    if bits not in (8, 16):
+        raise ValueError(f"write_png {path}: bits must be 8 or 16, got {bits}")
+    a = _as_hwc(linear, f"write_png {path}").astype(np.float64)
+    if a.shape[2] not in (1, 3):
+        raise ValueError(f"write_png {path}: {a.shape[2]} channels; give 1 (grey) or 3 (RGB)")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"write_png {path}: the image has NaN or Inf values")
+    a = np.clip(a, 0.0, 1.0)
+    if encode == "srgb":
+        a = linear_to_srgb(a).astype(np.float64)
+    top = 2 ** bits - 1
+    codes = np.rint(a * top).astype(np.uint8 if bits == 8 else np.uint16)
+    fmt = mi.Bitmap.PixelFormat.Y if codes.shape[2] == 1 else mi.Bitmap.PixelFormat.RGB
+    bitmap = mi.Bitmap(np.ascontiguousarray(codes), pixel_format=fmt)
+    bitmap.set_srgb_gamma(encode == "srgb")
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        bitmap.write(str(tmp))
+    return path
+
+
+# -- dispatch -------------------------------------------------------------------------------------
+
+def read_image(path: str | os.PathLike, colorspace: str = "srgb", *, expect_channels: int | None = None,
+               expect_shape: tuple[int, int] | None = None, allow_nonfinite: bool = False) -> np.ndarray:
+    """Read any supported image as linear float32 (H, W, C), dispatching on the suffix.
+
+    ``colorspace`` applies to PNG/JPEG only (EXR and HDR are linear by definition).
+    """
+    _check_colorspace(colorspace)
+    suffix = Path(path).suffix.lower()
+    checks = dict(expect_channels=expect_channels, expect_shape=expect_shape)
+    if suffix in EXR_SUFFIXES:
+        return read_exr(path, allow_nonfinite=allow_nonfinite, **checks)
+    if suffix in HDR_SUFFIXES:
+        return read_hdr(path, allow_nonfinite=allow_nonfinite, **checks)
+    if suffix in PNG_SUFFIXES + JPEG_SUFFIXES:
+        return read_ldr(path, colorspace, **checks)
+    raise InputError(f"{path}: unsupported image type {suffix or '(no suffix)'!r}; use "
+                     f"{', '.join(IMAGE_SUFFIXES)}")
+
+
+# -- resampling -------------------------------------------------------------------------------------
+
+def _area_axis(a: np.ndarray, n_out: int, axis: int) -> np.ndarray:
+    """Exact area average along ``axis``: output cell k covers input [k·s, (k+1)·s), s = n_in/n_out."""
+    a = np.moveaxis(a, axis, 0)
+    n_in = a.shape[0]
+    if n_in == n_out:
+        return np.moveaxis(a, 0, axis)
+    if n_in % n_out == 0:  # whole blocks (power-of-two textures): the same average, much faster
+        out = a.reshape((n_out, n_in // n_out) + a.shape[1:]).mean(axis=1, dtype=np.float64)
+        return np.moveaxis(out, 0, axis)
+    cum = np.concatenate([np.zeros((1,) + a.shape[1:]), np.cumsum(a, axis=0, dtype=np.float64)])
+    edges = np.arange(n_out + 1, dtype=np.float64) * (n_in / n_out)
+    k = np.minimum(np.floor(edges).astype(np.int64), n_in - 1)
+    frac = (edges - k).reshape((-1,) + (1,) * (a.ndim - 1))
+    integral = cum[k] + frac * a[k]  # ∫ of the piecewise-constant signal from 0 to each edge
+    out = (integral[1:] - integral[:-1]) * (n_out / n_in)
+    return np.moveaxis(out, 0, axis)
+
+
+def resize_area(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Resample (H, W) or (H, W, C) to ``size = (h, w)`` by exact area averaging, float32.
+
+    Each output pixel is the mean of the input over its footprint (fractional overlaps weighted):
+    a box filter, the right prefilter for downsampling maps. Upsampling replicates texels (with
+    blending where footprints straddle two). Constant images stay exactly constant.
+    """
+    h, w = (int(v) for v in size)
+    if h < 1 or w < 1:
+        raise ValueError(f"resize_area: size must be positive, got {size}")
+    a = np.asarray(image)
+    if a.ndim not in (2, 3):
+        raise ValueError(f"resize_area: image has shape {a.shape}; expected (H, W) or (H, W, C)")
+    out = _area_axis(_area_axis(a, h, 0), w, 1)  # accumulates in float64
+    return out.astype(np.float32)

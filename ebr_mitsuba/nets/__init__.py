@@ -1,0 +1,29 @@
+"""Neural networks and losses of ebr-mitsuba (PyTorch, CPU or CUDA).
+
+=================  ===========================================================================
+module             contents
+=================  ===========================================================================
+``nafnet``         :class:`NAFNet` backbone, :class:`NAFNetSize`, ``PAPER_SIZE``, ``SMALL_SIZE``
+``maps``           :class:`Maps` — named (B, C, H, W) SVBRDF map tensors
+``transforms``     input log transforms and output constraints
+``ebrenv``         :class:`LightingNet` and the :class:`Cascade` (diffuse → specular → refinement)
+``dualloss``       :class:`DualLossNet` — five-light 3-D-conv + U-Net estimator
+``losses``         parameter L1, rendering loss and its view/light sampler, MAIR losses
+``torch_brdf``     torch mirror of :mod:`ebr_mitsuba.brdf` and point-light renderers
+=================  ===========================================================================
+
+Importing this package imports torch but not Mitsuba; ``torch_brdf`` uses only the constants of
+:mod:`ebr_mitsuba.brdf` (importing it needs Dr.Jit, not a selected variant).
+"""
+
+from .dualloss import DualLossConfig, DualLossNet, basecolor_metallic_to_diffuse_specular
+from .ebrenv import Cascade, CascadeConfig, CascadeOutput, LightingNet, LightingNetConfig, LightingOutput
+from .maps import MAP_LAYOUT, NUM_MAP_CHANNELS, Maps
+from .nafnet import PAPER_SIZE, SIZE_PRESETS, SMALL_SIZE, NAFBlock, NAFNet, NAFNetSize, parameter_count
+
+__all__ = [
+    "NAFNet", "NAFNetSize", "NAFBlock", "PAPER_SIZE", "SMALL_SIZE", "SIZE_PRESETS", "parameter_count",
+    "Maps", "MAP_LAYOUT", "NUM_MAP_CHANNELS",
+    "LightingNet", "LightingNetConfig", "LightingOutput", "Cascade", "CascadeConfig", "CascadeOutput",
+    "DualLossNet", "DualLossConfig", "basecolor_metallic_to_diffuse_specular",
+]
