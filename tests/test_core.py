@@ -267,7 +267,8 @@ def test_sg_inner_product_and_product_match_reference():
     axis_np, lam_np = _np(axis), _np(lam_m)
     axis_np[lam_np < 1e-3] = [0.0, 0.0, 1.0]  # equal opposite lobes: constant product, any axis
     for k, off in enumerate([0.0, 1.0, 3.0]):
-        w = np.array([_tilted(_unit64(ax), off / math.sqrt(max(lm, 1.0)), 0.7 * k) for ax, lm in zip(axis_np, lam_np)])
+        w = np.array([_tilted(_unit64(ax), off / math.sqrt(max(lm, 1.0)), 0.7 * k)
+                      for ax, lm in zip(axis_np, lam_np)])
         pg = _np(sg.sg_eval(axis, lam_m, amp, _v(w)))
         pr = (reference.sg_eval(_unit64(a1), _f32(l1), _f32(m1), _f32(w))
               * reference.sg_eval(_unit64(a2), _f32(l2), _f32(m2), _f32(w)))
@@ -430,29 +431,40 @@ def test_brdf_reciprocity(rng):
         np.testing.assert_allclose(f_lv, f_vl, rtol=2e-6)
 
 
-def _hemisphere_integral(n, v, d, s, r) -> np.ndarray:
-    """∫ brdf_eval_cos dω over the upper hemisphere (Dr.Jit integrand, reference nodes)."""
+def _hemisphere_integral(n, v, d, s, r, fresnel="schlick") -> np.ndarray:
+    """∫ brdf_eval_cos dω over the upper hemisphere (Dr.Jit integrand at the reference's nodes,
+    :func:`reference.integration_rule`, accurate to ≤ 1e-7 here)."""
     w, dw = reference.integration_rule(n, v, r, n=12)
     m = len(w)
     f = _np(brdf.brdf_eval_cos(_v(np.tile(n, (m, 1))), _v(w), _v(np.tile(v, (m, 1))),
-                               _c(np.tile(d, (m, 1))), _c(np.tile(s, (m, 1))), _f(np.full(m, r))))
+                               _c(np.tile(d, (m, 1))), _c(np.tile(s, (m, 1))), _f(np.full(m, r)), fresnel))
     return np.sum(f * dw[:, None], axis=0)
 
 
 def test_brdf_energy():
-    """White furnace: diffuse 1 / specular 0 integrates to 1 (1e-5); specular 1 / diffuse 0 to
-    ≤ 1 + 1e-5 and ≥ 0.45 (single-scattering GGX loses energy at high roughness and grazing
-    view); normal incidence at r = 0.03 keeps ≥ 0.999."""
+    """White furnace with n = +z. Diffuse 1 / specular 0 integrates to 1 (1e-5) with F = s
+    (``fresnel="none"``); with Schlick, F₀ = 0 still reflects at grazing half-vector angles and the
+    DESIGN model does not weight the diffuse term by (1 − F), so the total exceeds 1 away from
+    normal incidence (measured 1.00003 at 0°, 1.004 at 45°, 1.10 at 80°, 1.15 at 89°): pinned to
+    [1, 1.2]. Specular 1 / diffuse 0: ≤ 1 + 1e-5 and ≥ 0.3 (single-scattering GGX loses energy
+    at high roughness: measured 0.307 … 1.0); at normal incidence ≥ 0.9999 for r ≤ 0.03, and
+    exactly 1 − ln 2 for r = 1 (α = 1: D = 1/π, G₁(c) = 2c/(1 + c), so ∫ = ∫₀¹ c/(1 + c) dc)."""
     z = np.array([0.0, 0.0, 1.0])
+    white, black = [1.0, 1.0, 1.0], [0.0, 0.0, 0.0]
     for theta_v in (0.0, 45.0, 80.0, 89.0):
         v = _dirs(math.radians(theta_v), 0.3)
-        e = _hemisphere_integral(z, v, [1.0, 1.0, 1.0], [0.0, 0.0, 0.0], 0.5)
-        np.testing.assert_allclose(e, 1.0, atol=1e-5)
+        np.testing.assert_allclose(_hemisphere_integral(z, v, white, black, 0.5, "none"), 1.0, atol=1e-5)
+        e = _hemisphere_integral(z, v, white, black, 0.5)
+        assert np.all(e >= 1.0 - 1e-5) and np.all(e <= 1.2), (theta_v, e)
+        if theta_v == 0.0:
+            np.testing.assert_allclose(e, 1.0, atol=1e-4)
         for r in (0.0, 0.03, 0.1, 0.3, 0.6, 1.0):
-            e = _hemisphere_integral(z, v, [0.0, 0.0, 0.0], [1.0, 1.0, 1.0], r)
-            assert np.all(e <= 1.0 + 1e-5) and np.all(e >= 0.45), (theta_v, r, e)
+            e = _hemisphere_integral(z, v, black, white, r)
+            assert np.all(e <= 1.0 + 1e-5) and np.all(e >= 0.3), (theta_v, r, e)
             if theta_v == 0.0 and r <= 0.03:
-                assert np.all(e >= 0.999), e
+                assert np.all(e >= 0.9999), e
+            if theta_v == 0.0 and r == 1.0:
+                np.testing.assert_allclose(e, 1.0 - math.log(2.0), rtol=1e-5)
 
 
 def _brdf_chi2(n, v, d, s, r):
@@ -586,7 +598,8 @@ def test_sg_hard_cases_finite_values_and_gradients():
         assert np.all(np.isfinite(_np(o))), o
         total = total + dr.sum(dr.sum(o) if dr.size_v(o) > 1 else o)
     dr.backward(total)
-    for name, x in (("sharpness", lam), ("axis", ax), ("amplitude", amp), ("axis2", ax2), ("sharpness2", lam2)):
+    for name, x in (("sharpness", lam), ("axis", ax), ("amplitude", amp), ("axis2", ax2),
+                    ("sharpness2", lam2)):
         g = _np(dr.grad(x))
         assert np.all(np.isfinite(g)), (name, np.argwhere(~np.isfinite(g))[:5])
 
