@@ -16,7 +16,7 @@ import math
 import drjit as dr
 import numpy as np
 
-from .stable import expm1, log1p, one_minus_exp_neg2_over
+from .stable import expm1, log1p, one_minus_exp_neg2_over, safe_rsqrt_norm
 
 TWO_PI = 2.0 * math.pi
 FOUR_PI = 4.0 * math.pi
@@ -45,10 +45,10 @@ def sg_product(axis1, sharpness1, amplitude1, axis2, sharpness2, amplitude2):
     The amplitude uses the cancellation-free exponent ``λₘ − λ₁ − λ₂ = −λ₁λ₂‖ξ₁−ξ₂‖²/(λₘ+λ₁+λ₂)``.
     """
     um = sharpness1 * axis1 + sharpness2 * axis2
-    lm = dr.norm(um)
+    lm = dr.safe_sqrt(dr.squared_norm(um))  # finite gradient when λ₁ξ₁ + λ₂ξ₂ = 0
     d = axis1 - axis2
     expo = -sharpness1 * sharpness2 * dr.squared_norm(d) / dr.maximum(lm + sharpness1 + sharpness2, 1e-30)
-    axis = um / dr.maximum(lm, 1e-30)
+    axis = safe_rsqrt_norm(um)
     return axis, lm, amplitude1 * amplitude2 * dr.exp(expo)
 
 
@@ -94,26 +94,36 @@ def _clamped_cos_azimuth_integral(a, b):
     return dr.select(inside, val_in, val_out)
 
 
-def sg_irradiance(axis, sharpness, amplitude, n, n_nodes: int = 16):
+def sg_irradiance(axis, sharpness, amplitude, n, n_nodes: int = 8):
     """Diffuse irradiance ∫ G(ω) max(n·ω, 0) dω (clamped cosine).
 
     The azimuthal integral about ξ is closed form; the remaining 1-D integral over the lobe's
-    polar angle runs in the vMF inverse-CDF variable with ``n_nodes`` Gauss–Legendre nodes, so it
-    is equally accurate for λ = 1e-4 and λ = 1e6. Exact (to quadrature accuracy) whether the lobe is
-    above, straddling or below the horizon of ``n``; when it is entirely above, this equals
-    :func:`sg_cosine_signed`.
+    polar variable t = ξ·ω runs in the vMF inverse-CDF variable u (so λ = 1e-4 and λ = 1e6 are
+    equally well resolved). The azimuthal integral has kinks where the horizon of ``n`` touches
+    the circle of constant t, at t = ±sin∠(n, ξ); the u-range is split there into three pieces,
+    each integrated with ``n_nodes`` Gauss–Legendre nodes, so the integrand is smooth on each piece.
+    Exact (to quadrature accuracy) whether the lobe is above, straddling or below the horizon.
     """
     c = dr.clip(dr.dot(n, axis), -1.0, 1.0)
     s = dr.safe_sqrt(1.0 - c * c)
     lam = dr.maximum(sharpness, 1e-6)
     em = expm1(-2.0 * lam)
     z = one_minus_exp_neg2_over(lam)
+
+    def u_of_t(t):  # vMF CDF measured from the axis: u = expm1(λ(t − 1)) / expm1(−2λ)
+        return dr.clip(expm1(lam * (t - 1.0)) / em, 0.0, 1.0)
+
+    u_a = u_of_t(s)
+    u_b = u_of_t(-s)
     nodes, weights = gauss_legendre01(n_nodes)
     acc = 0.0
-    for u, wgt in zip(nodes.tolist(), weights.tolist()):
-        t = dr.clip(1.0 + log1p(u * em) / lam, -1.0, 1.0)
-        h = _clamped_cos_azimuth_integral(c * t, s * dr.safe_sqrt(1.0 - t * t))
-        acc = acc + wgt * h
+    for lo, hi in ((0.0, u_a), (u_a, u_b), (u_b, 1.0)):
+        width = hi - lo
+        for x, wgt in zip(nodes.tolist(), weights.tolist()):
+            u = lo + width * x
+            t = dr.clip(1.0 + log1p(u * em) / lam, -1.0, 1.0)
+            h = _clamped_cos_azimuth_integral(c * t, s * dr.safe_sqrt(1.0 - t * t))
+            acc = acc + (wgt * width) * h
     return amplitude * (z * acc)
 
 

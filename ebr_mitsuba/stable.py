@@ -11,7 +11,15 @@ import drjit as dr
 
 
 def expm1(x):
-    """``exp(x) - 1`` without cancellation for small ``|x|``; exact ``-1`` for very negative ``x``."""
+    """``exp(x) - 1`` without cancellation for small ``|x|``; exact ``-1`` for very negative ``x``.
+
+    The value is Kahan's; the gradient is ``exp(x)`` exactly (a detached value plus the
+    zero-valued ``e − detach(e)``), since the Kahan factor differs from 1 by ~ε/|x|."""
+    e = dr.exp(x)
+    return dr.detach(_expm1_value(x)) + dr.select(dr.isfinite(e), e - dr.detach(e), 0.0)
+
+
+def _expm1_value(x):
     u = dr.exp(x)
     um1 = u - 1.0
     logu = dr.log(u)
@@ -24,7 +32,13 @@ def expm1(x):
 
 
 def log1p(x):
-    """``log(1 + x)`` without cancellation for small ``|x|`` (``x > -1``)."""
+    """``log(1 + x)`` without cancellation for small ``|x|`` (``x > -1``); gradient ``1/(1 + x)``
+    to an ulp (same construction as :func:`expm1`)."""
+    g = dr.log(1.0 + x)
+    return dr.detach(_log1p_value(x)) + dr.select(dr.isfinite(g), g - dr.detach(g), 0.0)
+
+
+def _log1p_value(x):
     u = 1.0 + x
     um1 = u - 1.0
     safe = (um1 != 0.0) & (u > 0.0)
@@ -35,8 +49,11 @@ def log1p(x):
 
 def one_minus_exp_neg2_over(lam):
     """``(1 - exp(-2 λ)) / λ`` for ``λ >= 0``: → 2 as λ → 0, → 1/λ for large λ."""
-    lam_safe = dr.maximum(lam, 1e-30)
-    return dr.select(lam > 1e-30, -expm1(-2.0 * lam_safe) / lam_safe, 2.0 + 0.0 * lam)
+    # Below 0.05 a series: the closed form's λ-derivative cancels two ~2/λ terms.
+    lam_big = dr.select(lam < 0.05, 0.05, lam)
+    big = -expm1(-2.0 * lam_big) / lam_big
+    small = 2.0 + lam * (-2.0 + lam * (4.0 / 3.0 + lam * (-2.0 / 3.0 + lam * (4.0 / 15.0 + lam * (-4.0 / 45.0)))))
+    return dr.select(lam < 0.05, small, big)
 
 
 def safe_rsqrt_norm(v, eps: float = 1e-20):

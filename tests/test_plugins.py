@@ -474,7 +474,14 @@ def test_hard_environments_stay_finite(rng, case):
     assert all(np.all(np.isfinite(v)) for v in values)
     assert all(np.all(v >= 0) for v in values)
     ref = env.eval(d)
-    np.testing.assert_allclose(_emitter_eval(em, d), ref, rtol=2e-5, atol=1e-6 * ref.max(initial=0.0))
+    # float32 directions (and the emitter's to_world transform) are off by ~1e-7 each, which moves
+    # the exponent λ(ξ·ω − 1) by up to λ‖ω − ξ‖·δ: the tolerance grows with it (δ = 1e-6)
+    slack = np.zeros(len(d))
+    for k in range(env.num_lobes):
+        ax = env.axis[k] / np.linalg.norm(env.axis[k])
+        slack = np.maximum(slack, float(env.sharpness[k]) * np.linalg.norm(d - ax, axis=1) * 1e-6)
+    err = np.abs(_emitter_eval(em, d) - ref)
+    assert np.all(err <= (2e-5 + slack)[:, None] * ref + 1e-6 * ref.max(initial=0.0)), err.max()
     ray, ray_weight = em.sample_ray(0.0, 0.5, mi.Point2f(0.3, 0.6), mi.Point2f(0.2, 0.7))
     assert np.all(np.isfinite(_np(ray_weight)))
     if env.num_lobes == 0 or case == "zero_amplitude":

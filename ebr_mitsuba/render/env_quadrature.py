@@ -44,7 +44,7 @@ from .inputs import DrLobes
 from .points import ShadingPoints
 
 # R₃ sequence: a_d = 1/g^d with g the real root of x⁴ = x + 1 (Roberts 2018), as 0.32 fixed point.
-_G3 = 1.2207440845057596
+_G3 = 1.2207440846057596
 _R3 = tuple(int(round((1.0 / _G3 ** (d + 1)) % 1.0 * 2.0**32)) & 0xFFFFFFFF for d in range(3))
 _ONE_MINUS = 1.0 - 2.0**-24
 BRDF, LOBE = 0, 1

@@ -24,7 +24,14 @@ Radiance towards ``v`` at a point with shading normal ``n`` under ``L(ω) = Σ_k
   horizon (``n·ξ_p ≤ 0`` or ``ξ_p,z ≤ 0``), and a pixel when ``n·v ≤ 0`` or ``v_z ≤ 0``; the cosine
   factor makes the first cut continuous for a flat normal. Lobes straddling the horizon are
   integrated over the whole sphere (the closed form cannot clip them): this, the SG fit of GGX
-  and the isotropic warp are the approximation's error sources (see the benchmark table).
+  and the isotropic warp are the approximation's error sources.
+
+  Measured (specular 0.2, flat normal, 6 seeded envs of a sky + 7 lobes λ ∈ [2, 50], ratio to
+  :func:`ebr_mitsuba.reference.render_env`, specular part only): roughness 0.1 within 2% at every
+  view; views ≤ 30° (the near shot's corners) 0.95–1.22 (overshoot peaks at r ≈ 0.7, ≈1.18);
+  60°: 0.7–1.2; 85° (grazing): 0.5 (r = 0.4) down to 0.16 (r = 1) — the isotropic warp keeps
+  the reflected lobe at the horizon where the true one stretches upwards. Use ``quadrature``
+  for grazing views of rough materials.
 
 The sum over lobes is one flat kernel over (lobe, point) pairs, lobe-major index ``k·P + q``,
 one gather per parameter array and one ``dr.scatter_reduce(Add)`` into the points (a Python loop
