@@ -40,7 +40,11 @@ test-all: llvm $(STAMP)
 bench: llvm $(STAMP)
 	$(VENV)/bin/ebr bench all --out docs/bench
 
-docs: bench
+# Regenerates every generated page: command and plugin references, the validation table, the benchmarks.
+docs: llvm $(STAMP)
+	$(PY) -m ebr_mitsuba.docgen --out docs
+	$(VENV)/bin/ebr validate --markdown docs/validation_table.md
+	$(VENV)/bin/ebr bench all --out docs/bench
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check ebr_mitsuba plugins tests

@@ -38,7 +38,7 @@ import numpy as np
 from .errors import ConfigError, InputError
 
 VIEW_DISTANCE = 2.14
-DEFAULT_SPP = 8192
+DEFAULT_SPP = 131072
 DEFAULT_BUDGETS = {"fast-sg": 0.05, "fast-quadrature": 0.02, "builtin-bsdf": 0.01, "builtin-emitter": 0.01}
 CHECKS = tuple(DEFAULT_BUDGETS)
 
