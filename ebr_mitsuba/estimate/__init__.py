@@ -1,1 +1,19 @@
-"""estimate"""
+"""``ebr estimate``: SVBRDF maps and SG lighting from real or synthetic flash/no-flash photos.
+
+=============  ===================================================================================
+module         contents
+=============  ===================================================================================
+``inputs``     reading the shots, EXIF exposure matching, the input checks (:class:`Inputs`)
+``resample``   the working resolution (model grid or tiled) and resampling to it
+``tiling``     tiled inference with raised-cosine overlap blending
+``refine``     test-time refinement of maps (and lobes) with the differentiable renderer
+``metrics``    per-map RMSE against ground truth
+``outputs``    the files of an estimate directory (maps, env pictures, re-renders, residuals, ...)
+``report``     the self-contained ``report.html``
+``pipeline``   the estimate job: stages, timings, the summary (:func:`run_estimate`)
+``gallery``    flash-only estimates of a photo folder as a docs page
+=============  ===================================================================================
+
+The network itself lives in :mod:`ebr_mitsuba.train.inference` (``load_model``, ``predict``);
+importing this package imports neither torch nor Mitsuba.
+"""

@@ -10,6 +10,8 @@ module             contents
 ``dualloss``       :class:`DualLossNet` — five-light 3-D-conv + U-Net estimator
 ``losses``         parameter L1, rendering loss and its view/light sampler, MAIR losses
 ``torch_brdf``     torch mirror of :mod:`ebr_mitsuba.brdf` and point-light renderers
+``drwrap``         the Dr.Jit fast renderer called from torch through ``dr.wrap`` (point light + SGs,
+                   gradients into torch); imported on demand (``ebr_mitsuba.nets.drwrap``)
 =================  ===========================================================================
 
 Importing this package imports torch but not Mitsuba; ``torch_brdf`` uses only the constants of

@@ -1,0 +1,690 @@
+"""``ebr bench extract-sg``: the SG-extraction ablation, the forward-model choice, the exemplar
+roughness study and the timing.
+
+:func:`run` writes ``<out_dir>/extract_sg.md`` and three plots (``extract_sg_ablation.png``,
+``extract_sg_study.png``, ``extract_sg_latlong.png``):
+
+1. **Ablation** (issue 4, paper Fig. 4(6)) at 128², exemplar roughness 0.1, 0.3, 0.6, 0.9, on
+   (a) procedural SG environments (exact ground truth; seeds 0 overcast, 1 window, 11 sun + sky)
+   and (b) the real HDR maps of ``../shared/data/envmaps``. Rows: random initialisation (+ the
+   rest of the pipeline), quad-tree initialisation only (closed-form amplitudes), + merge,
+   + optimisation, + densification (the full default pipeline), and the Two-Shot-style baseline
+   (24 Fibonacci axes, shared sharpness, NNLS amplitudes). Columns: exemplar re-render error, the
+   held-out test material's error (Mitsuba), lobe count, time.
+2. **Forward model in the loop** (``env_mode`` sg / quadrature / corrected) on the same scenes.
+3. **Exemplar roughness study** (paper §5.3.1, ideal exemplars): greedy selection over
+   {0.1, …, 0.9} for 1 … 9 exemplars at 64², criterion the lighting error averaged over the
+   procedural environments.
+4. **Timing**: 400 iterations, 64 lobes, 4 exemplars at 256²; Dr.Jit kernels and compilations per
+   iteration; the arithmetic lower bound (operations / peak) for the sampled loop and for the
+   paper's full-resolution work.
+
+Ground truth and errors (relative RMSE ``‖a − b‖/‖b‖``):
+
+* procedural environments: exemplars are the fast renderer's quadrature, mean of 8 patterns of 256
+  directions (the expectation, to ≈0.5 %); the estimate's exemplars the same with other patterns;
+* real maps: exemplars rendered by Mitsuba (``envmap`` emitter, ``direct`` integrator), 2 seeds ×
+  ``REAL_SPP``; the estimate's exemplars by the fast quadrature (the extracted lobes are SGs); the
+  error is noise-corrected, ``sqrt(max(e² − σ², 0))`` with σ the reference's noise measured from
+  its two seeds;
+* held-out test material (:data:`ebr_mitsuba.extract.evaluate.TEST_MATERIAL`): Mitsuba under the
+  true environment (``envmap`` / ``sgenvmap``) against Mitsuba under the extracted lobes
+  (``sgenvmap``), 2 seeds each, noise-corrected with both renders' measured noise.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import platform
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+SIZE = 128
+ROUGHNESS = (0.1, 0.3, 0.6, 0.9)
+PROCEDURAL_SEEDS = (0, 1, 11)
+REAL_MAPS = (
+    "forest_slope_1k.hdr",
+    "venice_sunset_1k.hdr",
+    "studio_small_03_1k.hdr",
+    "empty_warehouse_01_1k.hdr",
+)
+REAL_SPP = 512
+TEST_SPP = 256
+STUDY_SIZE = 64
+STUDY_GRID = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
+TIMING_SIZE = 256
+DATA_ENV = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "envmaps"
+PEAK_FLOP_PER_CYCLE = 32  # fp32 per core: 2 FMA pipes × 8 lanes × 2 (Zen 4 runs AVX-512 as 2×256 bit)
+
+
+@dataclass
+class Scene:
+    """One environment of the benchmark: its name, the exemplars (N, H, W, 3), the exemplars'
+    noise (relative, 0 for the quadrature mean), the Mitsuba emitter of the truth, the test
+    material reference (mean of two seeds) and its noise, and the truth as lobes (procedural)
+    or as an equirectangular map (real)."""
+
+    name: str
+    exemplars: np.ndarray
+    exemplar_noise2: float
+    emitter: dict | None
+    test_ref: np.ndarray
+    test_noise2: float
+    truth_sg: object | None = None
+    truth_map: object | None = None
+
+
+def _data_env_dir() -> Path:
+    return Path(os.environ.get("EBR_DATA_DIR", DATA_ENV.parent)) / "envmaps"
+
+
+def _mitsuba_pair(svbrdf, emitter: dict, spp: int, seed: int) -> tuple[np.ndarray, float]:
+    """Mean of two Mitsuba renders (seeds ``seed``, ``seed + 1``) and the squared norm of its
+    noise, ``‖a − b‖²/4``."""
+    from ..capture import render_shot
+    from ..geometry import near_shot
+
+    a = render_shot(svbrdf, emitter, near_shot(False), spp, seed).astype(np.float64)
+    b = render_shot(svbrdf, emitter, near_shot(False), spp, seed + 1).astype(np.float64)
+    return 0.5 * (a + b), float(np.sum((a - b) ** 2)) / 4.0
+
+
+def _corrected_error(est: np.ndarray, ref: np.ndarray, noise2: float) -> float:
+    e2 = float(np.sum((est - ref) ** 2)) - noise2
+    return math.sqrt(max(e2, 0.0) / max(float(np.sum(ref**2)), 1e-300))
+
+
+def procedural_scene(seed: int, size: int, test_spp: int) -> Scene:
+    from ..extract.evaluate import heldout_material, quadrature_mean
+    from ..procedural import environment_choice, make_environment
+    from ..sources import EnvSource
+
+    env = make_environment(seed)
+    emitter = EnvSource("<memory>", "sg", sg=env).emitter_dict()
+    ref, n2 = _mitsuba_pair(heldout_material(size), emitter, test_spp, 11)
+    kind = environment_choice(seed)[0]
+    return Scene(
+        f"procedural:{seed} ({kind}, {env.num_lobes} lobes)",
+        quadrature_mean(env, ROUGHNESS, size),
+        0.0,
+        emitter,
+        ref,
+        n2,
+        truth_sg=env,
+    )
+
+
+def real_scene(path: Path, size: int, spp: int, test_spp: int) -> Scene:
+    from ..extract.evaluate import heldout_material
+    from ..sources import parse_env
+    from ..svbrdf import SVBRDF
+
+    source = parse_env(str(path))
+    emitter = source.emitter_dict()
+    imgs, noise2 = [], 0.0
+    for k, r in enumerate(ROUGHNESS):
+        img, n2 = _mitsuba_pair(SVBRDF.uniform(size, size, 0.1, 0.2, r), emitter, spp, 100 + 2 * k)
+        imgs.append(img)
+        noise2 += n2
+    ref, tn2 = _mitsuba_pair(heldout_material(size), emitter, test_spp, 11)
+    return Scene(
+        path.stem, np.stack(imgs).astype(np.float32), noise2, emitter, ref, tn2, truth_map=source.equirect
+    )
+
+
+def evaluate(scene: Scene, env, size: int, test_spp: int) -> dict:
+    """Exemplar and test-material errors of the extracted ``env`` (module docstring)."""
+    from ..extract.evaluate import heldout_material, quadrature_mean
+    from ..sources import EnvSource
+
+    est = quadrature_mean(env, ROUGHNESS, size, seeds=4, seed0=5000).astype(np.float64)
+    ex = _corrected_error(est, scene.exemplars.astype(np.float64), scene.exemplar_noise2)
+    if env.num_lobes == 0:
+        return {"exemplars": ex, "test": 1.0}
+    emitter = EnvSource("<memory>", "sg", sg=env).emitter_dict()
+    test, n2 = _mitsuba_pair(heldout_material(size), emitter, test_spp, 21)
+    return {"exemplars": ex, "test": _corrected_error(test, scene.test_ref, scene.test_noise2 + n2)}
+
+
+def methods(quick: bool) -> list[tuple[str, object]]:
+    from ..extract import ExtractConfig
+
+    base = ExtractConfig() if not quick else ExtractConfig(iters=60, densify_at=(30,), correct_at=(0, 30))
+    return [
+        ("random init (+ all stages)", replace(base, init="random")),
+        ("quad-tree init only", replace(base, merge=False, optimize=False, densify=False)),
+        ("+ merge", replace(base, optimize=False, densify=False)),
+        ("+ optimisation", replace(base, densify=False)),
+        ("+ densification (default)", base),
+        ("Two-Shot baseline (24 Fibonacci, NNLS)", None),
+    ]
+
+
+def run_method(config, exemplars: np.ndarray):
+    from ..extract import extract_sg, fibonacci_nnls
+
+    if config is None:
+        return fibonacci_nnls(exemplars, ROUGHNESS)
+    return extract_sg(exemplars, ROUGHNESS, config=config)
+
+
+# -- the roughness study ----------------------------------------------------------------------------
+
+
+def lighting_error(env, truth, size: int, refs: dict) -> float:
+    """Mean of the 9-roughness exemplar error and the test-material error (fast quadrature)."""
+    from ..extract.evaluate import quadrature_mean, rel_rmse
+
+    est_ex = quadrature_mean(env, STUDY_GRID, size, seeds=2, seed0=5000)
+    est_t = quadrature_mean(env, None, size, seeds=2, seed0=5000)
+    return 0.5 * (rel_rmse(est_ex, refs["family"]) + rel_rmse(est_t, refs["test"]))
+
+
+ISSUE_SET = (0.1, 0.3, 0.6, 0.9)
+
+
+class _Study:
+    """Ground truth of the study: the 9-roughness exemplar family and the test material per
+    environment; :meth:`error` extracts from a subset and returns the mean lighting error."""
+
+    def __init__(self, seeds, size: int, config):
+        from ..extract.evaluate import quadrature_mean
+        from ..procedural import make_environment
+
+        self.size, self.config = size, config
+        self.envs = [make_environment(s) for s in seeds]
+        self.refs = [
+            {
+                "family": quadrature_mean(e, STUDY_GRID, size, seeds=4),
+                "test": quadrature_mean(e, None, size, seeds=4),
+            }
+            for e in self.envs
+        ]
+        self.index = {r: i for i, r in enumerate(STUDY_GRID)}
+
+    def error(self, trial) -> tuple[float, list]:
+        from ..extract import extract_sg
+
+        errs = []
+        for env, ref in zip(self.envs, self.refs):
+            ex = ref["family"][[self.index[t] for t in trial]]
+            res = extract_sg(ex, list(trial), config=self.config)
+            errs.append(lighting_error(res.env, env, self.size, ref))
+        return float(np.mean(errs)), errs
+
+
+def roughness_study(study: _Study, log) -> list[dict]:
+    """Greedy exemplar selection over :data:`STUDY_GRID` (module docstring)."""
+    chosen: list[float] = []
+    steps = []
+    while len(chosen) < len(STUDY_GRID):
+        best = None
+        for r in STUDY_GRID:
+            if r in chosen:
+                continue
+            score, errs = study.error(sorted(chosen + [r]))
+            if best is None or score < best[0]:
+                best = (score, r, errs)
+        chosen.append(best[1])
+        steps.append(
+            {
+                "count": len(chosen),
+                "added": best[1],
+                "set": sorted(chosen),
+                "error": best[0],
+                "per_env": best[2],
+            }
+        )
+        log(f"[extract-sg] study: {len(chosen)} exemplars {sorted(chosen)} error {best[0]:.4f}")
+    return steps
+
+
+def choose_set(steps: list[dict], tolerance: float = 0.05) -> dict:
+    """The smallest greedy set whose error is within ``tolerance`` (relative) of the best."""
+    best = min(s["error"] for s in steps)
+    return next(s for s in steps if s["error"] <= (1.0 + tolerance) * best)
+
+
+# -- timing ------------------------------------------------------------------------------------------
+
+
+def timing(size: int, iters: int) -> dict:
+    """Full pipeline on 4 exemplars at ``size``², and the Adam loop alone with exactly 64 lobes."""
+    import drjit as dr
+
+    from ..extract import ExtractConfig, extract_sg
+    from ..extract.evaluate import quadrature_mean
+    from ..extract.forward import ExemplarGeometry
+    from ..extract.optimize import Problem, run_adam
+    from ..geometry import near_shot
+    from ..procedural import make_environment
+    from ..render.inputs import RenderOptions
+
+    env = make_environment(11)
+    y = quadrature_mean(env, ROUGHNESS, size, seeds=2)
+    config = ExtractConfig(iters=iters)
+    extract_sg(y, ROUGHNESS, config=replace(config, iters=min(iters, 20)))  # warm the kernel cache
+    full = extract_sg(y, ROUGHNESS, config=config)
+    # the loop alone, 64 lobes
+    n = len(ROUGHNESS)
+    flat = (y / y.mean()).reshape(-1, 3)
+    per = flat.reshape(n, -1, 3)
+    rms = np.sqrt((per**2).sum(-1).mean(1))
+    geom = ExemplarGeometry(np.asarray(ROUGHNESS, np.float32), size, size, near_shot(False))
+    problem = Problem(
+        geom,
+        flat,
+        np.zeros(len(flat), bool),
+        np.ones(n),
+        0.01 * per.mean(axis=(1, 2)),
+        rms,
+        np.zeros_like(flat),
+    )
+    rng = np.random.default_rng(0)
+    ax = rng.normal(size=(64, 3))
+    ax[:, 2] = np.abs(ax[:, 2])
+    lobes = (ax / np.linalg.norm(ax, axis=1, keepdims=True), np.full(64, 30.0), np.full((64, 3), 0.2))
+    kw = dict(
+        lr=config.lr,
+        lr_axis=config.lr_axis,
+        log_weight=config.log_weight,
+        grid=config.sample_grid,
+        options=RenderOptions(mode="sg"),
+        corrected="ratio",
+        rng=rng,
+        history=[],
+    )
+    run_adam(problem, lobes, 3, 0, **kw)  # trace + compile
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    dr.kernel_history()
+    t0 = time.perf_counter()
+    run_adam(problem, lobes, iters, 0, **kw)
+    loop_s = time.perf_counter() - t0
+    hist = dr.kernel_history()
+    dr.set_flag(dr.JitFlag.KernelHistory, False)
+    jit = [k for k in hist if k.get("type") == dr.KernelType.JIT]
+    compiled = sum(1 for k in jit if not k.get("cache_hit", True))
+    ops = sum(float(k.get("operation_count", 0) or 0) * float(k.get("size", 0) or 0) for k in jit)
+    pair_lanes = sum(
+        float(k.get("size", 0)) for k in jit if k.get("size", 0) >= 64 * n * config.sample_grid**2
+    )
+    pairs = 64 * n * config.sample_grid**2
+    return {
+        "full_seconds": full.seconds,
+        "full_stage": full.stage_seconds,
+        "full_lobes": full.env.num_lobes,
+        "loop_seconds": loop_s,
+        "iters": iters,
+        "kernels_per_iter": len(hist) / iters,
+        "jit_per_iter": len(jit) / iters,
+        "compiled": compiled,
+        "ops_per_iter": ops / iters,
+        "pairs_per_iter": pairs,
+        "pair_lanes_per_iter": pair_lanes / iters,
+        "full_res_pairs": 64 * n * size * size,
+    }
+
+
+def cpu_peak() -> tuple[float, str]:
+    """Peak fp32 FLOP/s of this machine's cores (nominal clock × :data:`PEAK_FLOP_PER_CYCLE`)."""
+    mhz = 0.0
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.lower().startswith("cpu mhz"):
+                mhz = float(line.split(":")[1])
+                break
+    except OSError:
+        pass
+    cores = os.cpu_count() or 1
+    ghz = (mhz or 2600.0) / 1000.0
+    return (
+        cores * ghz * 1e9 * PEAK_FLOP_PER_CYCLE,
+        f"{cores} cores × {ghz:.2f} GHz × {PEAK_FLOP_PER_CYCLE} FLOP/cycle",
+    )
+
+
+# -- plots ------------------------------------------------------------------------------------------------
+
+
+def _tonemap(img: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    from ..imageio import linear_to_srgb
+
+    scale = 0.5 / max(float(np.percentile(ref @ np.array([0.2126, 0.7152, 0.0722]), 99)), 1e-12)
+    return np.clip(linear_to_srgb(np.clip(img * scale, 0.0, 1.0)), 0.0, 1.0)
+
+
+def plot_latlong(pairs: list[tuple[str, np.ndarray, np.ndarray]], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(len(pairs), 2, figsize=(10, 2.8 * len(pairs)), squeeze=False)
+    for row, (name, truth, est) in enumerate(pairs):
+        for col, (img, title) in enumerate(((truth, "true"), (est, "extracted"))):
+            ax = axes[row, col]
+            ax.imshow(_tonemap(img, truth))
+            ax.set_title(f"{name}: {title}", fontsize=9)
+            ax.axis("off")
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
+def plot_ablation(names: list[str], table: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.6))
+    for ax, group in zip(axes, ("procedural", "real")):
+        rows = table.get(group, {})
+        x = np.arange(len(names))
+        ex = [np.mean([r["exemplars"] for r in rows[n]]) for n in names]
+        te = [np.mean([r["test"] for r in rows[n]]) for n in names]
+        ax.bar(x - 0.2, ex, 0.4, label="exemplars")
+        ax.bar(x + 0.2, te, 0.4, label="test material")
+        ax.set_xticks(x, [n.split(" (")[0] for n in names], rotation=25, ha="right", fontsize=7)
+        ax.set_ylabel("relative RMSE (mean over envs)")
+        ax.set_title(f"{group} environments")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
+def plot_study(steps: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 3.4))
+    ax.plot([s["count"] for s in steps], [s["error"] for s in steps], "o-")
+    for s in steps:
+        ax.annotate(
+            f"+{s['added']:.1f}",
+            (s["count"], s["error"]),
+            fontsize=7,
+            xytext=(3, 4),
+            textcoords="offset points",
+        )
+    ax.set_xlabel("number of exemplars (greedy)")
+    ax.set_ylabel("lighting error (mean rel. RMSE)")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
+# -- the page ----------------------------------------------------------------------------------------------
+
+
+def _fmt(v: float) -> str:
+    return f"{100 * v:.2f} %"
+
+
+def run(out_dir: Path, quick: bool = False) -> Path:
+    """Run the benchmark and write ``out_dir/extract_sg.md`` (+ PNGs); returns the page's path."""
+    import drjit as dr
+    import mitsuba as mi
+
+    from ..envmap import sg_to_equirect
+    from ..extract import ExtractConfig
+    from ..variant import ensure_variant
+
+    ensure_variant()
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    t_start = time.perf_counter()
+
+    def log(msg: str) -> None:
+        import sys
+
+        print(msg, file=sys.stderr, flush=True)
+
+    size = 32 if quick else SIZE
+    real_spp, test_spp = (32, 32) if quick else (REAL_SPP, TEST_SPP)
+    seeds = PROCEDURAL_SEEDS[:1] if quick else PROCEDURAL_SEEDS
+    env_dir = _data_env_dir()
+    maps = [env_dir / m for m in REAL_MAPS if (env_dir / m).is_file()]
+    maps = maps[:1] if quick else maps
+    scenes = {
+        "procedural": [procedural_scene(s, size, test_spp) for s in seeds],
+        "real": [real_scene(p, size, real_spp, test_spp) for p in maps],
+    }
+    meths = methods(quick)
+    names = [m[0] for m in meths]
+    table: dict = {g: {n: [] for n in names} for g in scenes}
+    latlong = []
+    for group, group_scenes in scenes.items():
+        for scene in group_scenes:
+            for name, cfg in meths:
+                res = run_method(cfg, scene.exemplars)
+                err = evaluate(scene, res.env, size, test_spp)
+                table[group][name].append(
+                    {"scene": scene.name, **err, "lobes": res.env.num_lobes, "seconds": res.seconds}
+                )
+                log(
+                    f"[extract-sg] {scene.name:40s} {name:40s} ex {err['exemplars']:.4f} "
+                    f"test {err['test']:.4f} lobes {res.env.num_lobes} {res.seconds:.1f} s"
+                )
+                if cfg is not None and name.startswith("+ densification") and scene is group_scenes[0]:
+                    if scene.truth_sg is not None:
+                        latlong.append(
+                            (
+                                scene.name,
+                                sg_to_equirect(scene.truth_sg, 128, 256),
+                                sg_to_equirect(res.env, 128, 256),
+                            )
+                        )
+                    else:
+                        from ..imageio import resize_area
+
+                        truth = resize_area(scene.truth_map.data, (128, 256))
+                        latlong.append((scene.name, truth, sg_to_equirect(res.env, 128, 256)))
+    # forward-model choice
+    default_name = meths[-2][0]
+    modes = {}
+    for mode in ("sg", "quadrature", "corrected"):
+        cfg = replace(meths[-2][1], env_mode=mode)
+        if mode == cfg.__class__().env_mode:  # the default: the ablation's full-pipeline row
+            keys = ("exemplars", "test", "seconds")
+            modes[mode] = {g: [{k: r[k] for k in keys} for r in table[g][default_name]] for g in scenes}
+            continue
+        for group, group_scenes in scenes.items():
+            for scene in group_scenes:
+                res = run_method(cfg, scene.exemplars)
+                err = evaluate(scene, res.env, size, test_spp)
+                modes.setdefault(mode, {}).setdefault(group, []).append({**err, "seconds": res.seconds})
+                log(
+                    f"[extract-sg] mode {mode:10s} {scene.name:40s} ex {err['exemplars']:.4f} test "
+                    f"{err['test']:.4f}"
+                )
+    # roughness study
+    study_cfg = ExtractConfig(iters=60, densify_at=(30,), correct_at=(0, 30)) if quick else ExtractConfig()
+    study_seeds = PROCEDURAL_SEEDS[:1] if quick else PROCEDURAL_SEEDS
+    study_size = 32 if quick else STUDY_SIZE
+    study = _Study(study_seeds, study_size, study_cfg)
+    steps = roughness_study(study, log)
+    issue_error = study.error(list(ISSUE_SET))[0]
+    if quick:
+        steps = steps[:3]
+    # timing
+    tsize, titers = (64, 40) if quick else (TIMING_SIZE, 400)
+    tm = timing(tsize, titers)
+    peak, peak_text = cpu_peak()
+
+    plot_ablation(names, table, out_dir / "extract_sg_ablation.png")
+    plot_study(steps, out_dir / "extract_sg_study.png")
+    plot_latlong(latlong, out_dir / "extract_sg_latlong.png")
+
+    lines = ["# SG extraction: ablation, forward model, exemplar roughness, timing", ""]
+    lines += [
+        "Generated by `ebr bench "
+        f"extract-sg`{' --quick (reduced sizes: not the documented numbers)' if quick else ''}"
+        f" on {platform.machine()} ({os.cpu_count()} cores, Mitsuba {mi.__version__}, Dr.Jit "
+        f"{dr.__version__}, "
+        f"variant `{mi.variant()}`), {time.strftime('%Y-%m-%d')}; total {time.perf_counter() - t_start:.0f} "
+        "s. "
+        "Timings depend on the machine's load (other processes shared the two cores).",
+        "",
+    ]
+    lines += [
+        "Method and ground truth: `ebr_mitsuba/bench/extract_sg.py` (module docstring). Exemplar roughness "
+        f"{', '.join(str(r) for r in ROUGHNESS)}, {size}², near camera. Errors are relative RMSE "
+        "‖a − b‖/‖b‖ over all pixels and channels; *exemplars*: the 4 exemplars re-rendered under the "
+        "extracted lobes; *test*: the held-out material (diffuse (0.5, 0.35, 0.2), specular 0.04, roughness "
+        f"0.45) rendered with Mitsuba ({test_spp} spp × 2 seeds per side, noise-corrected). Real-map "
+        f"exemplars: Mitsuba `envmap`, {real_spp} spp × 2 seeds (noise-corrected).",
+        "",
+    ]
+    lines += ["## 1. Ablation (paper Fig. 4(6))", ""]
+    for group in ("procedural", "real"):
+        if not scenes[group]:
+            continue
+        lines += [
+            f"### {group} environments ({', '.join(s.name for s in scenes[group])})",
+            "",
+            "| method | exemplars | test material | lobes | time |",
+            "|---|---|---|---|---|",
+        ]
+        for n in names:
+            rows = table[group][n]
+            lines.append(
+                f"| {n} | {_fmt(np.mean([r['exemplars'] for r in rows]))} | "
+                f"{_fmt(np.mean([r['test'] for r in rows]))} | "
+                f"{np.mean([r['lobes'] for r in rows]):.1f} | {np.mean([r['seconds'] for r in rows]):.1f} s |"
+            )
+        lines += [
+            "",
+            "Per environment (exemplars / test):",
+            "",
+            "| method | " + " | ".join(s.name for s in scenes[group]) + " |",
+            "|---|" + "---|" * len(scenes[group]),
+        ]
+        for n in names:
+            lines.append(
+                f"| {n} | "
+                + " | ".join(f"{_fmt(r['exemplars'])} / {_fmt(r['test'])}" for r in table[group][n])
+                + " |"
+            )
+        lines.append("")
+    lines += [
+        "![ablation](extract_sg_ablation.png)",
+        "",
+        "True (left) against extracted (right) lighting, lat-long (Mitsuba's layout, +Y up, zenith at the "
+        "top), same exposure per row. The exemplars see the environment only through the near camera's "
+        "mirror directions (within about 30° of the zenith) and, blurred, through the rough exemplars: "
+        "light far from the zenith is recovered only as broad lobes.",
+        "",
+        "![lat-long](extract_sg_latlong.png)",
+        "",
+    ]
+    lines += [
+        "## 2. Forward model in the loop (`env_mode`)",
+        "",
+        "| env_mode | procedural: exemplars / test | real: exemplars / test | time (mean) |",
+        "|---|---|---|---|",
+    ]
+    for mode, groups in modes.items():
+        cells = []
+        for group in ("procedural", "real"):
+            rows = groups.get(group, [])
+            cells.append(
+                f"{_fmt(np.mean([r['exemplars'] for r in rows]))} / "
+                f"{_fmt(np.mean([r['test'] for r in rows]))}"
+                if rows
+                else "–"
+            )
+        secs = np.mean([r["seconds"] for g in groups.values() for r in g])
+        lines.append(f"| {mode} | {cells[0]} | {cells[1]} | {secs:.1f} s |")
+    lines += [
+        "",
+        "`sg` fits the closed form, which overshoots rough exemplars (DESIGN §5): the lobes absorb the "
+        "bias and every other material pays for it. `corrected` (the default) optimises the closed form plus "
+        "a quadrature − closed-form residual refreshed at iterations 0, 150, 250, 325.",
+        "",
+    ]
+    lines += [
+        "## 3. Exemplar roughness study (paper §5.3.1)",
+        "",
+        f"Greedy selection over {{{', '.join(str(r) for r in STUDY_GRID)}}}, ideal (ground-truth) exemplars "
+        "at "
+        f"{study_size}², procedural environments {', '.join(str(s) for s in study_seeds)}; the criterion is "
+        "the "
+        "mean of (a) the relative RMSE of the exemplar material at all nine roughness values and (b) the "
+        "test "
+        "material's, both re-rendered under the extracted lobes (fast quadrature).",
+        "",
+        "| exemplars | added | set | lighting error |",
+        "|---|---|---|---|",
+    ]
+    for s in steps:
+        lines.append(
+            f"| {s['count']} | {s['added']:.1f} | {', '.join(f'{r:.1f}' for r in s['set'])} | "
+            f"{_fmt(s['error'])} |"
+        )
+    pick = choose_set(steps)
+    lines += [
+        "",
+        f"The issue's example set {{{', '.join(str(r) for r in ISSUE_SET)}}} scores {_fmt(issue_error)} on "
+        "the same "
+        "criterion.",
+        "",
+        f"**Choice**: the curve flattens at {pick['count']} exemplars (the smallest greedy set within 5 % "
+        "of the best "
+        f"error, {_fmt(min(s['error'] for s in steps))}); the default set is "
+        f"{{{', '.join(f'{r:.1f}' for r in pick['set'])}}} ({_fmt(pick['error'])}).",
+        "",
+        "![study](extract_sg_study.png)",
+        "",
+    ]
+    ops = tm["ops_per_iter"]
+    full_ops = ops * tm["full_res_pairs"] / max(tm["pairs_per_iter"], 1)
+    lines += [
+        "## 4. Timing",
+        "",
+        f"4 exemplars at {tsize}², {titers} iterations (`ebr extract-sg` defaults), procedural:11 (sun + "
+        "sky).",
+        "",
+        "| what | time |",
+        "|---|---|",
+        f"| full pipeline (init … prune; {tm['full_lobes']} lobes kept) | {tm['full_seconds']:.1f} s |",
+        f"| Adam loop alone, exactly 64 lobes, {titers} iterations | {tm['loop_seconds']:.2f} s "
+        f"({1000 * tm['loop_seconds'] / titers:.1f} ms/iteration) |",
+        "| paper (RTX 3090, full resolution every iteration) | ≈ 5 s |",
+        "",
+        "Stages of the full pipeline: "
+        + ", ".join(f"{k} {v:.2f} s" for k, v in tm["full_stage"].items())
+        + ".",
+        "",
+        f"Per iteration: {tm['kernels_per_iter']:.1f} kernel launches ({tm['jit_per_iter']:.1f} JIT "
+        "kernels), "
+        f"{tm['compiled']} compilations in {titers} iterations after warm-up: the whole step (forward, "
+        "backward, "
+        "Adam) is a `dr.freeze` function replayed without tracing. Each iteration renders "
+        f"{tm['pairs_per_iter']:,} (pixel, lobe) pairs: {ROUGHNESS.__len__()} × "
+        f"{ExtractConfig().sample_grid}² "
+        "pixels re-drawn every iteration from the full-resolution targets.",
+        "",
+        "Arithmetic lower bound (Dr.Jit IR operations × lanes, an upper estimate of the FLOPs, over the "
+        "peak "
+        f"{peak / 1e9:.0f} GFLOP/s = {peak_text}): {ops / 1e6:.0f} M operations per iteration → "
+        f"{1000 * ops / peak:.2f} ms per iteration, {titers * ops / peak:.2f} s for {titers} iterations "
+        "(measured: "
+        f"{tm['loop_seconds']:.2f} s). The paper's work, every pixel every iteration "
+        f"({tm['full_res_pairs']:,} pairs), would be {titers * full_ops / peak:.0f} s at peak on this CPU: "
+        "sampling "
+        "pixels is what makes the 10 s target reachable here.",
+        "",
+    ]
+    lines += ["`cuda_ad_rgb` was not measured (no CUDA device on this machine).", ""]
+    path = out_dir / "extract_sg.md"
+    path.write_text("\n".join(lines) + "\n")
+    return path

@@ -1,0 +1,191 @@
+"""Estimate SVBRDF maps and the lighting from a flash/no-flash photo pair (or a flash-only photo).
+
+  ebr estimate --flash F [--noflash NF] [--far-flash F2 --far-noflash NF2] --out DIR
+               [--checkpoint C] [--refine-steps N] [--refine-lobes] [--json] [options]
+
+Inputs: EXR (linear) or PNG/JPEG (sRGB, 8/16 bit), all of one size, the sample filling the frame
+(see docs/capture-guide.md). Without --noflash the capture is flash-only (a dark room): no
+lighting is estimated. DIR receives maps/ (EXR + PNG), env.json with lat-long and hemisphere
+pictures of the SGs, re-renders of the shots and residuals, renders under novel lights,
+estimate.json and a self-contained report.html. DIR appears complete or not at all; an earlier
+estimate directory there is replaced, anything else is refused.
+
+Options (defaults in brackets):
+
+  --checkpoint C         model checkpoint [the shipped model]
+  --refine-steps N       test-time refinement steps against the photos [0]
+  --refine-lobes         refine the SG lobes too (needs --noflash)
+  --refine-lr X          refinement learning rate [0.02]
+  --render-mode M        environment term of the re-renders and refinement: sg | quadrature [sg]
+  --exposure-ratio R     no-flash exposure / flash exposure when the files carry no EXIF [EXIF or 1]
+  --fov DEG              horizontal field of view of the photos [45]
+  --flash-intensity I    flash intensity in W/sr at the flash shot's exposure [capture.json or fitted]
+  --max-shift F          largest flash/no-flash shift accepted, as a fraction of the width [0.02]
+  --saturation-level V   EXR value at which pixels count as clipped [none]
+  --no-tile              inputs above the model grid: downsample instead of tiled inference
+  --max-size N           largest working resolution of tiled inference [2048]
+  --tile-overlap N       overlap of neighbouring tiles in pixels [32]
+
+--json prints the summary (estimate.json: timings per stage, re-render errors before/after
+refinement, warnings, files) on stdout; progress goes to stderr. Exit 2 on bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ..estimate.inputs import DEFAULT_FOV, DEFAULT_MAX_SHIFT
+from ..estimate.refine import RefineConfig
+from ..estimate.resample import DEFAULT_MAX_SIZE
+from ..estimate.tiling import DEFAULT_OVERLAP
+from ._common import emit_json, progress, say
+
+NAME = "estimate"
+HELP = "estimate SVBRDF maps and lighting from flash/no-flash photos"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--flash", required=True, metavar="F", help="photo with the flash (EXR, PNG, JPEG)")
+    parser.add_argument("--noflash", metavar="NF", help="photo without the flash (omit: flash-only capture)")
+    parser.add_argument("--far-flash", metavar="F2", help="far shot with the flash (optional)")
+    parser.add_argument("--far-noflash", metavar="NF2", help="far shot without the flash")
+    parser.add_argument("--out", required=True, metavar="DIR", help="output directory")
+    parser.add_argument("--checkpoint", metavar="C", help="model checkpoint (default: the shipped model)")
+    add_refine_arguments(parser)
+    parser.add_argument(
+        "--exposure-ratio",
+        type=float,
+        metavar="R",
+        help="no-flash exposure / flash exposure (default: from EXIF, else 1)",
+    )
+    parser.add_argument(
+        "--fov", type=float, default=DEFAULT_FOV, help=f"horizontal field of view [{DEFAULT_FOV:g}]"
+    )
+    parser.add_argument(
+        "--flash-intensity",
+        type=float,
+        metavar="I",
+        help="flash intensity [W/sr] (default: capture.json beside --flash, else fitted)",
+    )
+    parser.add_argument(
+        "--max-shift",
+        type=float,
+        default=DEFAULT_MAX_SHIFT,
+        help=f"largest accepted shift between the shots, fraction of the width [{DEFAULT_MAX_SHIFT}]",
+    )
+    parser.add_argument(
+        "--saturation-level", type=float, metavar="V", help="EXR clipping level (default none)"
+    )
+    parser.add_argument("--no-tile", action="store_true", help="downsample large inputs instead of tiling")
+    parser.add_argument(
+        "--max-size",
+        type=int,
+        default=DEFAULT_MAX_SIZE,
+        help=f"largest working resolution of tiled inference [{DEFAULT_MAX_SIZE}]",
+    )
+    parser.add_argument(
+        "--tile-overlap",
+        type=int,
+        default=DEFAULT_OVERLAP,
+        help=f"tile overlap in pixels [{DEFAULT_OVERLAP}]",
+    )
+    parser.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
+
+
+def add_refine_arguments(parser: argparse.ArgumentParser) -> None:
+    """The refinement options (shared with ``ebr demo`` and ``ebr gallery``)."""
+    d = RefineConfig()
+    parser.add_argument(
+        "--refine-steps",
+        type=int,
+        default=d.steps,
+        metavar="N",
+        help=f"test-time refinement steps [{d.steps}]",
+    )
+    parser.add_argument("--refine-lobes", action="store_true", help="refine the SG lobes too")
+    parser.add_argument("--refine-lr", type=float, default=d.lr, help=f"refinement learning rate [{d.lr}]")
+    parser.add_argument(
+        "--render-mode", default=d.mode, metavar="M", help=f"environment term: sg or quadrature [{d.mode}]"
+    )
+
+
+def refine_config(args) -> RefineConfig:
+    return RefineConfig(
+        steps=args.refine_steps, lobes=args.refine_lobes, lr=args.refine_lr, mode=args.render_mode
+    )
+
+
+def check_flags(args) -> None:
+    """Conflicting or malformed options, refused before anything is read."""
+    from ..errors import InputError
+    from ..estimate.inputs import check_shot_flags
+
+    check_shot_flags(args.flash, args.noflash, args.far_flash, args.far_noflash, args.exposure_ratio)
+    if args.refine_lobes and args.refine_steps == 0:
+        raise InputError("--refine-lobes needs --refine-steps N > 0")
+    if args.refine_lobes and args.noflash is None:
+        raise InputError("--refine-lobes needs --noflash: a flash-only capture has no lighting to refine")
+    if args.no_tile and (args.max_size != DEFAULT_MAX_SIZE or args.tile_overlap != DEFAULT_OVERLAP):
+        raise InputError("--no-tile conflicts with --max-size/--tile-overlap; give one or the other")
+    if args.flash_intensity is not None and not (
+        args.flash_intensity > 0 and args.flash_intensity < float("inf")
+    ):
+        raise InputError(f"--flash-intensity {args.flash_intensity}: give a finite value > 0")
+    if args.checkpoint is not None and not Path(args.checkpoint).is_file():
+        raise InputError(
+            f"--checkpoint {args.checkpoint}: no such file; give a model checkpoint or omit it "
+            f"for the shipped model"
+        )
+    out = Path(args.out).resolve()
+    for p in (args.flash, args.noflash, args.far_flash, args.far_noflash):
+        if p is not None and out in Path(p).resolve().parents:
+            raise InputError(f"--out {args.out} contains the input {p}; choose another --out")
+
+
+def run(args) -> int:
+    from ..estimate.pipeline import EstimateConfig, run_estimate
+
+    check_flags(args)
+    cfg = EstimateConfig(
+        flash=args.flash,
+        noflash=args.noflash,
+        far_flash=args.far_flash,
+        far_noflash=args.far_noflash,
+        out=args.out,
+        checkpoint=args.checkpoint,
+        refine=refine_config(args),
+        exposure_ratio=args.exposure_ratio,
+        fov=args.fov,
+        max_shift=args.max_shift,
+        saturation_level=args.saturation_level,
+        flash_intensity=args.flash_intensity,
+        tile=not args.no_tile,
+        max_size=args.max_size,
+        tile_overlap=args.tile_overlap,
+    )
+    summary = run_estimate(cfg, log=say, bar=progress)
+    if args.json:
+        emit_json(summary)
+    else:
+        print_summary(summary)
+    return 0
+
+
+def print_summary(summary: dict) -> None:
+    """The human summary on stderr."""
+    err = summary["rerender_error"]
+    net = err["network"]["mean"]
+    line = f"re-render RMSE {net['rmse']:.4g} (relative {net['rel_rmse']:.3f})"
+    if err["refined"]:
+        ref = err["refined"]["mean"]
+        line += (
+            f" -> {ref['rmse']:.4g} (relative {ref['rel_rmse']:.3f}) after "
+            f"{summary['refine']['steps']} refinement steps ({summary['refine']['seconds']:.1f} s)"
+        )
+    say(line)
+    say(
+        f"wrote {summary['out']} ({summary['resolution']}x{summary['resolution']}, "
+        f"{summary['lobes']} SG lobes, "
+        f"{summary['total_seconds']:.1f} s); report: {Path(summary['out']) / 'report.html'}"
+    )

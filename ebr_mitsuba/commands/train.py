@@ -1,0 +1,59 @@
+"""Train the EBREnv networks or the dual-loss estimator from a TOML config.
+
+  ebr train CONFIG.toml [--out DIR] [--resume] [--json]
+
+The config (schema: docs/train.md, defaults in ebr_mitsuba/train/config.py) names the data set
+(`ebr generate`), the networks, the steps per phase and the losses. The run writes into DIR
+(default: runs/<config name>):
+
+  config.json    the config as trained (after defaults)
+  log.csv        phase, step, loss, per-term losses, learning rate, samples/s, seconds
+  last.pt        the latest checkpoint (weights, config, git hash, step, optimizer state)
+  model.pt       the final checkpoint
+  summary.json   per-phase steps, final losses and seconds
+  cache/         per-sample exemplar selections and extracted SGs (reused by --resume)
+
+Options:
+  --out DIR      output directory (must be new or empty unless --resume)
+  --resume       continue the run in DIR from last.pt (same config)
+  --json         print summary.json on stdout
+
+Data-parallel: `torchrun --nproc_per_node N -m ebr_mitsuba.cli train CONFIG.toml --out DIR`
+(gloo on CPU, NCCL on CUDA; rank 0 writes). CUDA is used when present ([train].device = "auto").
+A progress bar with the loss and samples/s runs on stderr.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ._common import emit_json, progress, say
+
+NAME = "train"
+HELP = "train the networks from a TOML config (two stages, checkpoints, resume, DDP)"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("config", help="training config (TOML), e.g. configs/train_small.toml")
+    parser.add_argument("--out", default=None, help="output directory [runs/<config name>]")
+    parser.add_argument("--resume", action="store_true", help="continue the run in --out from last.pt")
+    parser.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
+
+
+def run(args) -> int:
+    from ..train.config import load_config
+    from ..train.ddp import shutdown
+    from ..train.trainer import Trainer
+
+    config = load_config(args.config)
+    out = Path(args.out) if args.out else Path("runs") / Path(args.config).stem
+    trainer = Trainer(config, out, resume=args.resume, log=say, progress=progress)
+    try:
+        summary = trainer.run()
+    finally:
+        shutdown(trainer.dist)
+    if trainer.dist.main:
+        say(f"wrote {out / 'model.pt'} ({summary.get('seconds', 0):.0f} s, {summary.get('samples')} samples)")
+        if args.json:
+            emit_json(summary)
+    return 0

@@ -1,0 +1,232 @@
+"""The files an estimate writes (all under one output directory, built atomically by the pipeline).
+
+==============================  =================================================================
+path                            content
+==============================  =================================================================
+``maps/``                       the final maps: a material directory (``normal|diffuse|specular|
+                                roughness.exr`` + ``.png`` previews + ``material.json``)
+``maps_network/``               the network's maps before refinement (only with refinement)
+``env.json``                    the SG environment (``ebr-sg/1``; absent for flash-only captures)
+``env_latlong.exr|.png``        the SGs as a z-up lat-long image (top row zenith, u = φ/2π)
+``env_sphere.png``              the upper hemisphere seen from above (orthographic: +x right,
+                                +y up), the light as the sample sees it
+``inputs/<shot>.png``           the shots at the working resolution, exposure-matched
+``rerender/<shot>.exr|.png``    the estimate re-rendered for each shot (fast renderer)
+``residual/<shot>.exr|.png``    re-render − photo (EXR: signed RGB; PNG: luminance, blue −, red +,
+                                full scale ±``RESIDUAL_SCALE`` × the photo's RMS)
+``novel/<name>.exr|.png``       renders under novel lights (:data:`NOVEL_LIGHTS`)
+``exemplars/*.png``             the lighting network's exemplars and flash-only image, when given
+``estimate.json``               the summary (also printed by ``--json``)
+``report.html``                 :mod:`.report`
+==============================  =================================================================
+
+PNG previews of radiance use one exposure per shot (photo and re-render alike, the photo's 99.5th
+luminance percentile mapped to 1) and the sRGB curve, so the pairs compare directly.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..geometry import NEAR_DISTANCE, Shot
+from ..imageio import write_exr, write_png
+from ..materials import save_material_dir
+from ..sgenv import SGEnvironment
+from ..svbrdf import SVBRDF
+from .inputs import luminance
+
+RESIDUAL_SCALE = 0.5
+# Novel lights: name → (point light position or None, intensity factor × the flash's, env rotation
+# about +z in degrees or None for no environment).
+NOVEL_LIGHTS = {
+    "light_upper_left": ((-1.2, 1.2, 2.0), 1.0, None),
+    "light_lower_right": ((1.2, -1.2, 2.0), 1.0, None),
+    "light_grazing": ((-3.0, 0.0, 0.8), 2.0, None),
+    "env_rotated_180": (None, 0.0, 180.0),
+}
+
+
+def exposure_of(image: np.ndarray) -> float:
+    """Preview exposure: 1 / the 99.5th luminance percentile (1 for a black image)."""
+    p = float(np.percentile(luminance(image), 99.5)) if image.size else 0.0
+    return 1.0 / p if p > 0 and math.isfinite(p) else 1.0
+
+
+def preview(path: Path, image: np.ndarray, exposure: float) -> Path:
+    return write_png(path, np.clip(image * exposure, 0, 1))
+
+
+def residual_png(path: Path, render: np.ndarray, photo: np.ndarray) -> Path:
+    """Luminance residual in a diverging colour map, ±RESIDUAL_SCALE × RMS(photo) full scale."""
+    from matplotlib import colormaps
+
+    rms = float(np.sqrt(np.mean(luminance(photo).astype(np.float64) ** 2))) or 1.0
+    r = luminance(render - photo) / (RESIDUAL_SCALE * rms)
+    rgb = colormaps["RdBu_r"](np.clip(0.5 + 0.5 * r, 0, 1))[..., :3].astype(np.float32)
+    return write_png(path, rgb, encode="linear")
+
+
+def latlong_directions(height: int) -> np.ndarray:
+    """Unit directions (H, 2H, 3) of a z-up lat-long image: column u = φ/2π (φ from +x towards
+    +y), row v = θ/π (θ from +z), texel centres."""
+    w = 2 * height
+    phi = (np.arange(w) + 0.5) / w * 2 * np.pi
+    theta = (np.arange(height) + 0.5) / height * np.pi
+    t, p = np.meshgrid(theta, phi, indexing="ij")
+    return np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
+
+
+def hemisphere_directions(size: int) -> tuple[np.ndarray, np.ndarray]:
+    """Directions (S, S, 3) of the upper hemisphere seen from above (orthographic, +x right, +y
+    up) and the (S, S) mask of the disk."""
+    c = (np.arange(size) + 0.5) / size * 2 - 1
+    x, y = np.meshgrid(c, -c)
+    r2 = x * x + y * y
+    inside = r2 < 1
+    z = np.sqrt(np.maximum(1 - r2, 0))
+    d = np.stack([x, y, z], axis=-1)
+    return d, inside
+
+
+def env_pictures(env: SGEnvironment, out: Path, height: int = 128) -> list[str]:
+    """``env_latlong.exr/.png`` and ``env_sphere.png`` of ``env``; returns the file names."""
+    latlong = env.eval(latlong_directions(height)).astype(np.float32)
+    d, inside = hemisphere_directions(2 * height)
+    sphere = (env.eval(d) * inside[..., None]).astype(np.float32)
+    # Exposure: the sky (median of the upper hemisphere) at 0.25 keeps both sun and sky readable.
+    sky = float(np.median(luminance(latlong[: height // 2])))
+    k = 0.25 / sky if sky > 0 else exposure_of(latlong)
+    write_exr(out / "env_latlong.exr", latlong)
+    preview(out / "env_latlong.png", latlong, k)
+    preview(out / "env_sphere.png", sphere, k)
+    return ["env.json", "env_latlong.exr", "env_latlong.png", "env_sphere.png"]
+
+
+def novel_shots(
+    flash_intensity: float, distance: float = NEAR_DISTANCE
+) -> dict[str, tuple[Shot, float | None]]:
+    """The :data:`NOVEL_LIGHTS` as shots from the near camera, with their env rotation (degrees)."""
+    cam = (0.0, 0.0, float(distance))
+    out = {}
+    for name, (pos, factor, rot) in NOVEL_LIGHTS.items():
+        out[name] = (
+            Shot(
+                name,
+                cam,
+                2 * math.degrees(math.atan(1 / distance)),
+                pos,
+                float(flash_intensity * factor),
+                env=rot is not None,
+            ),
+            rot,
+        )
+    return out
+
+
+def write_novel(
+    maps: SVBRDF,
+    env: SGEnvironment | None,
+    flash_intensity: float,
+    out: Path,
+    distance: float = NEAR_DISTANCE,
+    mode: str = "sg",
+) -> list[str]:
+    """Renders of ``maps`` under :data:`NOVEL_LIGHTS` into ``out/novel``; returns file names.
+    Environment-lit renders are skipped when there is no environment."""
+    from .refine import rerender
+
+    files = []
+    (out / "novel").mkdir(exist_ok=True)
+    for name, (shot, rot) in novel_shots(flash_intensity, distance).items():
+        if rot is not None and (env is None or env.num_lobes == 0):
+            continue
+        e = env.rotated_z(math.radians(rot)) if rot is not None else None
+        img = rerender(maps, e, shot, mode)
+        write_exr(out / "novel" / f"{name}.exr", img)
+        preview(out / "novel" / f"{name}.png", img, exposure_of(img))
+        files += [f"novel/{name}.exr", f"novel/{name}.png"]
+    return files
+
+
+def write_maps(maps: SVBRDF, path: Path, source: str) -> list[str]:
+    save_material_dir(maps, path, meta={"source": source, "licence": "as the input photos"})
+    base = path.name
+    return [
+        f"{base}/{n}.{ext}" for n in ("normal", "diffuse", "specular", "roughness") for ext in ("exr", "png")
+    ]
+
+
+def write_shots(
+    out: Path,
+    photos: dict[str, np.ndarray],
+    renders: dict[str, np.ndarray],
+    masks: dict[str, np.ndarray] | None = None,
+) -> list[str]:
+    """Inputs, re-renders and residuals per shot name."""
+    files = []
+    for sub in ("inputs", "rerender", "residual"):
+        (out / sub).mkdir(exist_ok=True)
+    for name, photo in photos.items():
+        k = exposure_of(photo)
+        preview(out / "inputs" / f"{name}.png", photo, k)
+        files.append(f"inputs/{name}.png")
+        if name in renders:
+            r = renders[name]
+            write_exr(out / "rerender" / f"{name}.exr", r)
+            preview(out / "rerender" / f"{name}.png", r, k)
+            write_exr(out / "residual" / f"{name}.exr", r - photo)
+            residual_png(out / "residual" / f"{name}.png", r, photo)
+            files += [
+                f"rerender/{name}.exr",
+                f"rerender/{name}.png",
+                f"residual/{name}.exr",
+                f"residual/{name}.png",
+            ]
+    return files
+
+
+def write_exemplars(out: Path, prediction) -> list[str]:
+    """The prediction's environment exemplars and flash-only image as PNGs (whatever is present:
+    a list/tuple or dict of (H, W, 3) arrays)."""
+    items = []
+    ex = getattr(prediction, "env_exemplars", None)
+    if isinstance(ex, dict):
+        items += [(f"exemplar_{k}", v) for k, v in ex.items()]
+    elif isinstance(ex, (list, tuple)) or (isinstance(ex, np.ndarray) and ex.ndim == 4):
+        items += [(f"exemplar_{i}", v) for i, v in enumerate(ex)]
+    fo = getattr(prediction, "flash_only", None)
+    if fo is not None:
+        items.append(("flash_only", fo))
+    files = []
+    for name, img in items:
+        a = np.asarray(img, dtype=np.float32)
+        if a.ndim != 3 or a.shape[2] not in (1, 3) or not np.all(np.isfinite(a)):
+            continue
+        (out / "exemplars").mkdir(exist_ok=True)
+        safe = "".join(ch if ch.isalnum() or ch in "._-" else "_" for ch in str(name))
+        preview(out / "exemplars" / f"{safe}.png", a, exposure_of(a))
+        files.append(f"exemplars/{safe}.png")
+    return files
+
+
+def with_intensity(shot: Shot, intensity: float) -> Shot:
+    return dataclasses.replace(shot, flash_intensity=float(intensity))
+
+
+__all__ = [
+    "NOVEL_LIGHTS",
+    "RESIDUAL_SCALE",
+    "env_pictures",
+    "write_novel",
+    "write_maps",
+    "write_shots",
+    "write_exemplars",
+    "exposure_of",
+    "latlong_directions",
+    "hemisphere_directions",
+    "novel_shots",
+]

@@ -1,0 +1,252 @@
+"""``report.html``: one self-contained page (every picture embedded as a base64 PNG) per estimate.
+
+Sections: summary and input checks (warnings), the inputs, the maps (and the network's maps
+before refinement), the lighting (hemisphere and lat-long pictures of the SGs, exemplars), the
+re-renders beside the photos and the residuals with their errors, the refinement (errors before
+and after, loss curve), renders under novel lights, the per-map errors against ground truth when
+known (``ebr demo``), and the time per stage. It reads the PNGs the pipeline wrote into the
+output directory and the summary dict (``estimate.json``).
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+from pathlib import Path
+
+from ..fsutil import atomic_write_text
+from ..svbrdf import MAP_NAMES
+from .inputs import HIGHLIGHT_MIN_R2
+
+_CSS = """
+body{font-family:system-ui,sans-serif;margin:1.5em;max-width:1400px;color:#222}
+h1{font-size:1.5em}h2{font-size:1.2em;border-bottom:1px solid #ccc;margin-top:1.6em}
+figure{display:inline-block;margin:0 .6em .8em 0;vertical-align:top;text-align:center}
+figure img{width:220px;image-rendering:pixelated;border:1px solid #ddd}
+figure.wide img{width:440px}figcaption{font-size:.85em;color:#444;max-width:440px}
+table{border-collapse:collapse;margin:.5em 0}td,th{border:1px solid #ccc;padding:.2em .6em;text-align:right}
+th{background:#f3f3f3}td.l,th.l{text-align:left}.warn{color:#a40}.ok{color:#070}
+"""
+
+
+def _img(out: Path, rel: str, caption: str, wide: bool = False) -> str:
+    path = out / rel
+    if not path.is_file():
+        return ""
+    data = base64.b64encode(path.read_bytes()).decode("ascii")
+    cls = ' class="wide"' if wide else ""
+    return (
+        f'<figure{cls}><img alt="{html.escape(caption)}" src="data:image/png;base64,{data}">'
+        f"<figcaption>{html.escape(caption)}</figcaption></figure>"
+    )
+
+
+def _fmt(v, digits: int = 4) -> str:
+    if v is None:
+        return "–"
+    if isinstance(v, float):
+        return f"{v:.{digits}g}"
+    return html.escape(str(v))
+
+
+def _table(header: list[str], rows: list[list], left: int = 1) -> str:
+    th = "".join(f"<th{' class=l' if i < left else ''}>{html.escape(h)}</th>" for i, h in enumerate(header))
+    body = "".join(
+        "<tr>"
+        + "".join(f"<td{' class=l' if i < left else ''}>{_fmt(c)}</td>" for i, c in enumerate(r))
+        + "</tr>"
+        for r in rows
+    )
+    return f"<table><tr>{th}</tr>{body}</table>"
+
+
+def _loss_svg(history: list, width: int = 420, height: int = 140) -> str:
+    """A small polyline of the refinement loss (log scale) over the steps."""
+    import math
+
+    pts = [(s, v) for s, v in history if v > 0]
+    if len(pts) < 2:
+        return ""
+    s0, s1 = pts[0][0], pts[-1][0]
+    lv = [math.log10(v) for _, v in pts]
+    lo, hi = min(lv), max(lv)
+    span = (hi - lo) or 1.0
+    xy = " ".join(
+        f"{10 + (width - 20) * (s - s0) / max(s1 - s0, 1):.1f},{10 + (height - 20) * (hi - l) / span:.1f}"
+        for (s, _), l in zip(pts, lv)
+    )
+    return (
+        f'<svg width="{width}" height="{height}" style="border:1px solid #ddd">'
+        f'<polyline fill="none" stroke="#36c" stroke-width="2" points="{xy}"/>'
+        f'<text x="12" y="20" font-size="11">loss {pts[0][1]:.3g} (step {s0})</text>'
+        f'<text x="{width - 150}" y="{height - 14}" font-size="11">{pts[-1][1]:.3g} (step {s1})</text></svg>'
+    )
+
+
+def render_report(out: Path, summary: dict) -> str:
+    """The HTML text of the report for the estimate directory ``out`` (its PNGs must exist)."""
+    out = Path(out)
+    inp = summary["inputs"]
+    parts = [
+        f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>ebr estimate: {html.escape(out.name)}"
+        f"</title><style>{_CSS}</style></head><body>",
+        f"<h1>ebr estimate — {html.escape(summary['capture'])} capture</h1>",
+    ]
+    parts.append(
+        _table(
+            ["item", "value"],
+            [
+                ["flash shot", inp["paths"].get("flash")],
+                ["no-flash shot", inp["paths"].get("noflash", "— (flash-only: no lighting estimate)")],
+                *(
+                    [["far shots", f"{inp['paths']['far_flash']}, {inp['paths']['far_noflash']}"]]
+                    if "far_flash" in inp["paths"]
+                    else []
+                ),
+                ["input size", "x".join(str(v) for v in inp["source_size"][::-1])],
+                [
+                    "working resolution",
+                    f"{summary['resolution']}² (model grid {summary['model_grid']}², "
+                    f"{'tiled' if summary['tiled'] else 'one pass'})",
+                ],
+                ["field of view", f"{inp['fov']:g}°"],
+                [
+                    "flash intensity",
+                    "; ".join(
+                        f"{k}: {v['intensity']:.4g} W/sr ({v['source']})" for k, v in summary["flash"].items()
+                    ),
+                ],
+                ["SG lobes", summary["lobes"]],
+                ["renderer", f"fast Dr.Jit renderer, environment term '{summary['render_mode']}'"],
+                ["total time", f"{summary.get('total_seconds', sum(summary['timings'].values())):.1f} s"],
+            ],
+        )
+    )
+
+    parts.append("<h2>Input checks</h2>")
+    rows = [[k, f"×{v['factor']:.4g}", v["source"]] for k, v in inp["exposure"].items()]
+    parts.append(_table(["shot", "exposure factor", "source"], rows))
+    checks = [["saturated pixels", f"{inp['saturated_fraction']:.2%}"]]
+    for k, (dy, dx) in inp["shifts"].items():
+        checks.append([f"alignment ({k} pair)", f"dx {dx:+.1f}, dy {dy:+.1f} px"])
+    hl = inp["highlight"] or {"position": None, "fit_r2": 0.0}
+    pos, r2 = hl["position"], hl["fit_r2"]
+    if r2 < HIGHLIGHT_MIN_R2:
+        verdict = f"not measurable: the texture dominates the flash falloff (fit R² {r2:.2f})"
+    elif pos is None:
+        verdict = f"not found (fit R² {r2:.2f})"
+    else:
+        verdict = f"x {pos[0]:+.2f}, y {pos[1]:+.2f} half-widths from the centre (fit R² {r2:.2f})"
+    checks.append(["flash highlight", verdict])
+    parts.append(_table(["check", "result"], checks))
+    if summary["warnings"]:
+        parts.append(
+            "<ul>" + "".join(f'<li class="warn">{html.escape(w)}</li>' for w in summary["warnings"]) + "</ul>"
+        )
+    else:
+        parts.append('<p class="ok">All input checks passed.</p>')
+
+    shots = list(summary["rerender_error"]["network"].keys())
+    shots = [s for s in shots if s != "mean"]
+    parts.append("<h2>Inputs</h2>" + "".join(_img(out, f"inputs/{s}.png", s) for s in shots))
+
+    parts.append("<h2>Maps</h2>")
+    parts.append("".join(_img(out, f"maps/{m}.png", m) for m in MAP_NAMES))
+    if summary.get("refine"):
+        parts.append("<p>Network maps, before refinement:</p>")
+        parts.append("".join(_img(out, f"maps_network/{m}.png", f"{m} (network)") for m in MAP_NAMES))
+
+    parts.append("<h2>Lighting</h2>")
+    if summary["capture"] == "flash-only":
+        parts.append("<p>Flash-only capture: no environment estimated.</p>")
+    else:
+        parts.append(
+            _img(out, "env_sphere.png", "upper hemisphere seen from above (+x right, +y up)")
+            + _img(out, "env_latlong.png", "lat-long, z up (top row zenith)", wide=True)
+        )
+    ex = sorted(p.name for p in (out / "exemplars").glob("*.png")) if (out / "exemplars").is_dir() else []
+    if ex:
+        parts.append(
+            "<p>Lighting network outputs (exemplars, flash-only image):</p>"
+            + "".join(_img(out, f"exemplars/{n}", n[:-4]) for n in ex)
+        )
+
+    parts.append(
+        "<h2>Re-renders and residuals</h2><p>Photo, re-render of the estimate and residual "
+        "(re-render − photo, luminance; blue darker, red brighter; full scale ±50% of the photo's "
+        "RMS). Errors over unsaturated pixels, linear.</p>"
+    )
+    err_net, err_ref = summary["rerender_error"]["network"], summary["rerender_error"]["refined"]
+    for s in shots:
+        e = (err_ref or err_net)[s]
+        photo = _img(out, f"inputs/{s}.png", f"{s}: photo")
+        rend = _img(out, f"rerender/{s}.png", "re-render (RMSE {:.4g})".format(e["rmse"]))
+        resid = _img(out, f"residual/{s}.png", "residual (relative RMSE {:.3f})".format(e["rel_rmse"]))
+        before = (
+            _img(out, f"rerender_network/{s}_residual.png", "residual before refinement") if err_ref else ""
+        )
+        parts.append(f"<div>{photo}{rend}{resid}{before}</div>")
+    rows = [
+        [
+            s,
+            err_net[s]["rmse"],
+            err_net[s]["rel_rmse"],
+            *([err_ref[s]["rmse"], err_ref[s]["rel_rmse"]] if err_ref else []),
+        ]
+        for s in shots + ["mean"]
+    ]
+    header = ["shot", "RMSE network", "rel. RMSE network"] + (
+        ["RMSE refined", "rel. RMSE refined"] if err_ref else []
+    )
+    parts.append(_table(header, rows))
+
+    if summary.get("refine"):
+        r = summary["refine"]
+        before, after = err_net["mean"]["rmse"], err_ref["mean"]["rmse"]
+        change = (after - before) / before if before > 0 else float("nan")
+        parts.append(
+            f"<h2>Refinement</h2><p>{r['steps']} Adam steps ({'maps and lobes' if r['lobes'] else 'maps'}) "
+            f"in {r['seconds']:.1f} s: mean re-render RMSE {before:.4g} → {after:.4g} "
+            f"({change:+.1%}).</p>" + _loss_svg(r["history"])
+        )
+
+    novel = sorted(p.name for p in (out / "novel").glob("*.png")) if (out / "novel").is_dir() else []
+    if novel:
+        parts.append(
+            "<h2>Novel lighting</h2>"
+            + "".join(_img(out, f"novel/{n}", n[:-4].replace("_", " ")) for n in novel)
+        )
+
+    if summary.get("map_error"):
+        me = summary["map_error"]
+        rows = [
+            [m, me["network"][m], *([me["refined"][m]] if me["refined"] else [])]
+            for m in (*MAP_NAMES, "mean")
+        ]
+        parts.append(
+            "<h2>Against ground truth</h2><p>Per-map RMSE (normals as (n+1)/2).</p>"
+            + _table(["map", "network"] + (["refined"] if me["refined"] else []), rows)
+        )
+
+    t = summary["timings"]
+    parts.append("<h2>Time per stage</h2>" + _table(["stage", "seconds"], [[k, v] for k, v in t.items()]))
+    pt = summary.get("prediction_timings") or {}
+    if pt:
+        parts.append(
+            "<p>Inside the prediction:</p>" + _table(["step", "seconds"], [[k, v] for k, v in pt.items()])
+        )
+    parts.append(
+        f"<p style='color:#888;font-size:.8em'>ebr-mitsuba {html.escape(str(summary.get('version')))}"
+        f"</p></body></html>"
+    )
+    return "\n".join(parts)
+
+
+def write_report(out: Path, summary: dict) -> Path:
+    """Write ``out/report.html``; returns its path."""
+    path = Path(out) / "report.html"
+    atomic_write_text(path, render_report(out, summary))
+    return path
+
+
+__all__ = ["render_report", "write_report"]

@@ -1,0 +1,58 @@
+"""Reference predictors for ``ebr eval``: what a trained model must beat.
+
+* :class:`MeanMaps` — baseline (a): every sample gets the training set's per-pixel mean maps
+  (normals averaged as vectors and renormalised), whatever the photos show.
+
+Baseline (b), the same network trained without exemplars, is a checkpoint of its own
+(``configs/train_small_noexemplars.toml``) evaluated like any model.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..svbrdf import SVBRDF
+
+
+class MeanMaps:
+    """Predicts the per-pixel mean maps of the first ``max_samples`` samples of a data set."""
+
+    def __init__(self, maps: SVBRDF, source: str):
+        self.maps = maps
+        self.source = source
+
+    @staticmethod
+    def from_dataset(root: str | Path, max_samples: int = 0) -> MeanMaps:
+        from ..data.dataset import GeneratedDataset
+
+        ds = GeneratedDataset(root)
+        n = len(ds) if max_samples <= 0 else min(len(ds), max_samples)
+        if n == 0:
+            raise InputError(f"{root}: no samples to average")
+        total = None
+        for i in range(n):
+            m = ds[i]["maps"].numpy().astype(np.float64)
+            total = m if total is None else total + m
+        mean = (total / n).transpose(1, 2, 0).astype(np.float32)
+        normal = mean[..., :3] / np.maximum(np.linalg.norm(mean[..., :3], axis=-1, keepdims=True), 1e-6)
+        maps = SVBRDF(
+            normal,
+            mean[..., 3:6].clip(0, 1),
+            mean[..., 6:9].clip(0, 1),
+            mean[..., 9].clip(0, 1),
+            source=f"mean of {n} samples of {root}",
+        )
+        return MeanMaps(maps, str(root))
+
+    def predict(self, size: tuple[int, int]) -> SVBRDF:
+        if self.maps.shape != tuple(size):
+            from ..materials import resample_svbrdf
+
+            return resample_svbrdf(self.maps, tuple(size))
+        return self.maps
+
+
+__all__ = ["MeanMaps"]

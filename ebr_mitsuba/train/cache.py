@@ -1,0 +1,98 @@
+"""On-disk caches of the per-sample work that does not change during a phase.
+
+* **stage 1** (``cache/stage1/NNNNNN.npz``): the adaptive exemplar selection under the
+  ground-truth environment (in photo units) — env exemplars against the no-flash photo,
+  point-light exemplars against the ground-truth flash-only image;
+* **stage 2** (``cache/stage2/NNNNNN.npz``): the trained lighting net's flash-only image, the SGs
+  :func:`ebr_mitsuba.extract.extract_sg` extracts from its exemplars, and the selection under them.
+
+Arrays are float32, images (K, H, W, 3) as selection returns them; lobes (K, 7). A cache file
+is written atomically and reused when present (``ebr train --resume``); under DDP each rank fills
+its share. :func:`load_cache` stacks the files of samples 0 … N−1 into tensors.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..fsutil import atomic_path
+
+
+def cache_file(root: Path, stage: str, index: int) -> Path:
+    return Path(root) / "cache" / stage / f"{index:06d}.npz"
+
+
+def _save(path: Path, **arrays) -> None:
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            np.savez(f, **{k: np.asarray(v, np.float32) for k, v in arrays.items()})
+
+
+def _selection_arrays(env_sel, point_sel, size: int) -> dict:
+    env_images = env_sel.images if env_sel is not None else np.zeros((3, size, size, 3), np.float32)
+    env_r = env_sel.roughness if env_sel is not None else (0.0, 0.0, 0.0)
+    return {
+        "env_images": env_images,
+        "env_roughness": env_r,
+        "point_images": point_sel.images,
+        "point_roughness": point_sel.roughness,
+    }
+
+
+def fill_stage1(root: Path, data, indices, select_config, progress=None) -> None:
+    """Stage-1 selections for ``indices`` (skipping cached ones)."""
+    from ..sgenv import SGEnvironment
+    from .inference import select_pair
+
+    todo = [i for i in indices if not cache_file(root, "stage1", i).is_file()]
+    nf_i, fl_i = data.shot("noflash"), 0
+    for i in progress(todo, desc="stage-1 selection", unit="sample") if progress else todo:
+        lobes = data.lobes(torch.tensor([i]))[0].numpy()
+        env = SGEnvironment(lobes[:, :3], lobes[:, 3], lobes[:, 4:]) if len(lobes) else SGEnvironment.empty()
+        noflash = data.photos[i, nf_i].permute(1, 2, 0).numpy()
+        flash_only = data.flash_only[i, fl_i].permute(1, 2, 0).numpy()
+        env_sel, point_sel = select_pair(env, noflash, flash_only, select_config)
+        _save(cache_file(root, "stage1", i), **_selection_arrays(env_sel, point_sel, noflash.shape[0]))
+
+
+def fill_stage2(root: Path, data, indices, bundle, select_config, extract_config, progress=None) -> None:
+    """Stage-2 lighting, extracted SGs and selections for ``indices`` (skipping cached ones)."""
+    from ..nets.drwrap import lobes_from_env
+    from .inference import estimate_lighting, select_pair
+
+    todo = [i for i in indices if not cache_file(root, "stage2", i).is_file()]
+    fl, nf = data.shot("flash"), data.shot("noflash")
+    for i in progress(todo, desc="stage-2 extraction", unit="sample") if progress else todo:
+        flash = data.photos[i, fl].permute(1, 2, 0).numpy()
+        noflash = data.photos[i, nf].permute(1, 2, 0).numpy()
+        _, flash_only, env, _ = estimate_lighting(bundle, flash, noflash, extract_config=extract_config)
+        arrays = {"flash_only": flash_only, "sg": lobes_from_env(env).numpy()}
+        if bundle.cascade.config.use_exemplars:
+            arrays.update(
+                _selection_arrays(*select_pair(env, noflash, flash_only, select_config), flash.shape[0])
+            )
+        _save(cache_file(root, "stage2", i), **arrays)
+
+
+def load_cache(root: Path, stage: str, indices) -> dict:
+    """Stacked tensors of a stage's cache: images as (N, K, 3, H, W) / (N, 3, H, W); ``sg`` as a
+    list of (K_b, 7) tensors."""
+    files = [np.load(cache_file(root, stage, i)) for i in indices]
+    out = {}
+    for key in files[0].files:
+        arrays = [f[key] for f in files]
+        if key == "sg":
+            out[key] = [torch.from_numpy(a.reshape(-1, 7)) for a in arrays]
+        elif arrays[0].ndim == 4:
+            out[key] = torch.from_numpy(np.stack(arrays)).permute(0, 1, 4, 2, 3).contiguous()
+        elif arrays[0].ndim == 3:
+            out[key] = torch.from_numpy(np.stack(arrays)).permute(0, 3, 1, 2).contiguous()
+        else:
+            out[key] = torch.from_numpy(np.stack(arrays))
+    return out
+
+
+__all__ = ["cache_file", "fill_stage1", "fill_stage2", "load_cache"]

@@ -1,0 +1,88 @@
+"""Training data in memory: the first N samples of a generated data set as stacked tensors.
+
+The data sets of this project are small at training resolutions (64² × 20 images ≈ 1 MB per
+sample), so :func:`load_training_data` reads them once through
+:class:`ebr_mitsuba.data.dataset.GeneratedDataset` and every step indexes tensors. Shapes (N
+samples, image layout):
+
+======================  ====================  ===============================================
+field                   shape                 content
+======================  ====================  ===============================================
+``photos``              (N, S, 3, H, W)       shots in ``shot_names`` order (linear)
+``flash_only``          (N, F, 3, H, W)       flash-only images
+``env_exemplars``       (N, E, 3, H, W)       the data set's environment exemplars
+``maps``                (N, 10, H, W)         ground-truth maps (:data:`MAP_LAYOUT`)
+``sg``, ``sg_mask``     (N, K, 7), (N, K)     ground-truth lobes (radiance units), padding mask
+``gains``               (N, 3)                exposure × white balance (photo units / radiance)
+======================  ====================  ===============================================
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from ..errors import InputError
+
+
+@dataclass
+class TrainingData:
+    root: Path
+    shot_names: list[str]
+    photos: torch.Tensor
+    flash_only: torch.Tensor
+    env_exemplars: torch.Tensor
+    maps: torch.Tensor
+    sg: torch.Tensor
+    sg_mask: torch.Tensor
+    gains: torch.Tensor
+
+    def __len__(self) -> int:
+        return int(self.maps.shape[0])
+
+    def shot(self, name: str) -> int:
+        if name not in self.shot_names:
+            raise InputError(
+                f"{self.root}: the data set has shots {self.shot_names}, not '{name}'; "
+                f"use a data set of the model's capture setup"
+            )
+        return self.shot_names.index(name)
+
+    def lobes(self, idx: torch.Tensor) -> list[torch.Tensor]:
+        """Ground-truth lobes of samples ``idx`` in photo units, (K_b, 7) each."""
+        from ..nets.drwrap import lobes_from_padded
+        from .renders import photo_unit_lobes
+
+        return photo_unit_lobes(lobes_from_padded(self.sg[idx], self.sg_mask[idx]), self.gains[idx])
+
+
+def load_training_data(root: str | Path, max_samples: int = 0, progress=None) -> TrainingData:
+    """Read samples 0 … min(N, max_samples) − 1 of the data set at ``root`` (0: all)."""
+    from ..data.dataset import GeneratedDataset
+
+    ds = GeneratedDataset(root)
+    n = len(ds) if max_samples <= 0 else min(len(ds), max_samples)
+    if n == 0:
+        raise InputError(f"{root}: the data set has no samples; generate some with 'ebr generate'")
+    items = [ds[i] for i in (progress(range(n), desc="loading", unit="sample") if progress else range(n))]
+
+    def stack(key):
+        return torch.stack([it[key] for it in items])
+
+    gains = torch.stack([it["exposure"] * it["white_balance"] for it in items])
+    return TrainingData(
+        Path(root),
+        ds.shot_names,
+        stack("photos"),
+        stack("flash_only"),
+        stack("env_exemplars"),
+        stack("maps"),
+        stack("sg"),
+        stack("sg_mask"),
+        gains,
+    )
+
+
+__all__ = ["TrainingData", "load_training_data"]

@@ -1,0 +1,98 @@
+"""``ebr eval``: a model (or a baseline) on every sample of a generated data set.
+
+For each sample the model sees the photos only (an ``ebrenv`` model the flash / no-flash pair
+through :func:`.inference.predict`, a ``dualloss`` model the five light shots) and its maps are
+scored against the ground truth with :mod:`.metrics`. ``seconds`` per sample is the wall time of
+the prediction alone (lighting, extraction, selection and the cascade for ``ebrenv``).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import torch
+
+from ..data import store
+from ..errors import InputError
+from ..svbrdf import SVBRDF
+from . import metrics
+
+
+def _truth(item: dict) -> SVBRDF:
+    m = item["maps"].numpy().transpose(1, 2, 0)
+    return SVBRDF(m[..., :3], m[..., 3:6], m[..., 6:9], m[..., 9], source="ground truth")
+
+
+def model_predictor(bundle, fixed_roughness: float | None = None) -> Callable[[dict, list[str]], SVBRDF]:
+    """``predict(item, shot_names) -> SVBRDF`` for a loaded model."""
+    from .inference import predict
+
+    def run(item: dict, names: list[str]) -> SVBRDF:
+        photos = item["photos"]
+        if bundle.kind == "dualloss":
+            with torch.no_grad():
+                maps = bundle.dualloss(photos[None].to(bundle.device))
+            return maps.to_svbrdf(0)
+        if "noflash" not in names:
+            raise InputError(f"the data set has shots {names}; an ebrenv model needs flash / no-flash pairs")
+        img = {n: photos[k].permute(1, 2, 0).numpy() for k, n in enumerate(names)}
+        return predict(bundle, img["flash"], img["noflash"], fixed_roughness=fixed_roughness).maps
+
+    return run
+
+
+def evaluate(
+    predictor: Callable[[dict, list[str]], SVBRDF],
+    data: str | Path,
+    *,
+    limit: int = 0,
+    seed: int = 0,
+    intensity: float | None = None,
+    progress=None,
+) -> dict:
+    """Per-sample and averaged metrics (:mod:`.metrics`) of ``predictor`` on the data set ``data``."""
+    from ..data.dataset import GeneratedDataset
+
+    ds = GeneratedDataset(data)
+    if intensity is None:
+        intensity = float(
+            store.read_json(Path(data) / store.DATASET_JSON)["config"]["capture"]["flash_intensity"]
+        )
+    pairs = metrics.rerender_pairs(seed)
+    n = len(ds) if limit <= 0 else min(limit, len(ds))
+    rows = []
+    for i in progress(range(n), desc="eval", unit="sample") if progress else range(n):
+        item = ds[i]
+        t0 = time.perf_counter()
+        est = predictor(item, ds.shot_names)
+        seconds = time.perf_counter() - t0
+        row = metrics.sample_metrics(est, _truth(item), pairs, intensity)
+        row.update(
+            index=i,
+            seconds=seconds,
+            material=ds.index["samples"][i]["material"],
+            env=ds.index["samples"][i]["env"],
+        )
+        rows.append(row)
+    out = metrics.average(rows)
+    out["per_sample"] = rows
+    out["seed"] = seed
+    return out
+
+
+def group_means(rows: list[dict], key: Callable[[dict], str]) -> dict:
+    """Averages of rows grouped by ``key(row)`` (e.g. real vs procedural materials)."""
+    groups: dict[str, list[dict]] = {}
+    for r in rows:
+        groups.setdefault(key(r), []).append(r)
+    return {k: metrics.average(v) for k, v in sorted(groups.items())}
+
+
+def material_group(row: dict) -> str:
+    """``"procedural"`` or ``"real"`` from a row's material spec."""
+    return "procedural" if str(row.get("material", "")).startswith("procedural:") else "real"
+
+
+__all__ = ["evaluate", "group_means", "material_group", "model_predictor"]

@@ -1,0 +1,279 @@
+"""Running a trained model: photos in, maps + SG lighting out (DESIGN §1, the whole pipeline).
+
+:func:`load_model` reads a checkpoint (None: the model shipped in :mod:`ebr_mitsuba.models`);
+:func:`predict` runs, on numpy (H, W, 3) linear float32 images at the model grid
+(``bundle.resolution``):
+
+==============  ==========================================================================
+stage           work (``Prediction.timings`` key)
+==============  ==========================================================================
+``lighting``    lighting net: (flash, no-flash[, far pair]) → N env exemplars + flash-only
+``extract``     :func:`ebr_mitsuba.extract.extract_sg` on the exemplars → SG environment
+``select``      :func:`ebr_mitsuba.extract.select.select_exemplars`: env exemplars against
+                the no-flash photo, point-light exemplars against the flash-only image
+``cascade``     diffuse → specular → refinement nets (:func:`.renders.cascade_forward`)
+==============  ==========================================================================
+
+**Flash-only mode** (``noflash`` None): no lighting stage; the flash photo is the flash-only
+image, the environment exemplars and the no-flash input are black, and ``env`` is None.
+
+Extraction and selection use the settings the model was trained with (its config's
+``[extract]`` and ``[selection]`` tables); ``extract_config`` overrides the former.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..errors import InputError
+from ..sgenv import SGEnvironment
+from ..svbrdf import SVBRDF
+from .bundle import ModelBundle, bundle_from_checkpoint
+from .checkpoint import load_checkpoint
+
+SHIPPED_MODEL = "ebrenv_small.pt"
+FALLBACK_ROUGHNESS = 0.5
+
+
+def shipped_model_path() -> Path:
+    """Path of the model shipped in the package (:mod:`ebr_mitsuba.models`)."""
+    return Path(str(resources.files("ebr_mitsuba.models").joinpath(SHIPPED_MODEL)))
+
+
+def pick_device(name: str = "auto") -> torch.device:
+    """``auto``: CUDA when present, else CPU."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise InputError("device 'cuda' requested but torch sees no CUDA device; use 'auto' or 'cpu'")
+    return torch.device(name)
+
+
+def load_model(
+    path: str | Path | None = None, device: str = "auto", expect_kind: str | None = "ebrenv"
+) -> ModelBundle:
+    """The model in checkpoint ``path`` (None: the shipped model), networks in eval mode.
+
+    Raises :class:`InputError` naming the file when it is missing, corrupt or of another kind.
+    """
+    path = shipped_model_path() if path is None else Path(path)
+    if not path.is_file() and path == shipped_model_path():
+        raise InputError(
+            f"{path}: the shipped model is missing from this installation; reinstall "
+            f"ebr-mitsuba or pass --checkpoint"
+        )
+    data = load_checkpoint(path, expect_kind=expect_kind)
+    return bundle_from_checkpoint(data, str(path), pick_device(device)).train(False)
+
+
+@dataclass
+class Prediction:
+    """What :func:`predict` returns.
+
+    ``maps``: SVBRDF at the model grid; ``env``: extracted SG environment in the photos' units
+    (None in flash-only mode); ``env_exemplars``: the lighting net's N exemplars, (H, W, 3) each,
+    in the order of ``bundle.facts.env_roughness`` (empty in flash-only mode); ``flash_only``:
+    (H, W, 3) the flash-only image the cascade used; ``selection``: ``{"env": Selection | None,
+    "point": Selection}``; ``timings``: seconds per stage.
+    """
+
+    maps: SVBRDF
+    env: SGEnvironment | None
+    env_exemplars: list[np.ndarray] = field(default_factory=list)
+    flash_only: np.ndarray | None = None
+    selection: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
+
+
+def _image(name: str, image, size: int) -> np.ndarray:
+    a = np.asarray(image, dtype=np.float32)
+    if a.shape != (size, size, 3):
+        raise InputError(
+            f"predict: {name} has shape {a.shape}; expected ({size}, {size}, 3) at the model grid "
+            f"(resample the photos first)"
+        )
+    if not np.all(np.isfinite(a)):
+        raise InputError(f"predict: {name} contains NaN or Inf values")
+    return np.maximum(a, 0.0)
+
+
+def _chw(a: np.ndarray, device) -> torch.Tensor:
+    """(H, W, 3) or (N, H, W, 3) numpy → (1, 3, H, W) or (1, N, 3, H, W) tensor."""
+    t = torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))
+    t = t.permute(2, 0, 1) if t.ndim == 3 else t.permute(0, 3, 1, 2)
+    return t[None].to(device)
+
+
+def _hwc(t: torch.Tensor) -> np.ndarray:
+    """(3, H, W) or (N, 3, H, W) tensor → numpy (H, W, 3) / (N, H, W, 3) float32."""
+    t = t.detach().to("cpu", torch.float32)
+    return (t.permute(1, 2, 0) if t.ndim == 3 else t.permute(0, 2, 3, 1)).numpy().copy()
+
+
+def _structured(image: np.ndarray) -> bool:
+    """True when the image's luminance varies (the selection's score needs structure)."""
+    from ..extract.select import LUMINANCE
+
+    lum = np.asarray(image, np.float64) @ LUMINANCE
+    return bool(lum.max() > 0.0 and lum.max() > lum.min())
+
+
+def select_pair(
+    env: SGEnvironment | None,
+    noflash: np.ndarray | None,
+    flash_only: np.ndarray,
+    select_config,
+    fixed_roughness: float | None = None,
+):
+    """Adaptive selection of the env exemplars (vs. the no-flash photo; None without one) and the
+    point-light exemplars (vs. the flash-only image). Returns ``(env Selection | None, point
+    Selection)``. ``fixed_roughness``: skip the search and use (r, low anchor, high anchor) — the
+    "without adaptive selection" ablation; also used when a target is black or uniform (a saturated
+    photo), with :data:`FALLBACK_ROUGHNESS`."""
+    from ..extract.select import Selection, env_exemplar_images, point_exemplar_images, select_exemplars
+
+    env = env if env is not None else SGEnvironment.empty()
+    h, w = flash_only.shape[:2]
+    if fixed_roughness is None and not (
+        _structured(flash_only) and (noflash is None or _structured(noflash))
+    ):
+        fixed_roughness = FALLBACK_ROUGHNESS  # black / uniform (e.g. saturated) target: nothing to search
+    if fixed_roughness is not None:
+        rough = (float(fixed_roughness), *select_config.anchors)
+        env_sel = (
+            None
+            if noflash is None
+            else Selection(
+                rough,
+                {},
+                env_exemplar_images(env, rough, h, w, None, select_config.env_mode, select_config.env_spp),
+            )
+        )
+        return env_sel, Selection(rough, {}, point_exemplar_images(rough, h, w))
+    env_sel = None if noflash is None else select_exemplars(env, noflash, config=select_config)
+    point_sel = select_exemplars(None, flash_only, point_light=True, config=select_config)
+    return env_sel, point_sel
+
+
+@torch.no_grad()
+def estimate_lighting(
+    bundle: ModelBundle,
+    flash: np.ndarray,
+    noflash: np.ndarray,
+    far_flash: np.ndarray | None = None,
+    far_noflash: np.ndarray | None = None,
+    *,
+    extract_config=None,
+) -> tuple[np.ndarray, np.ndarray, SGEnvironment, dict]:
+    """Lighting net + SG extraction: ``(exemplars (N, H, W, 3), flash_only (H, W, 3), env, timings)``."""
+    from ..extract import extract_sg
+
+    timings = {}
+    t0 = time.perf_counter()
+    shots = [flash, noflash] + ([far_flash, far_noflash] if bundle.lighting.config.num_shots == 4 else [])
+    x = torch.cat([_chw(s, bundle.device) for s in shots], dim=1)
+    out = bundle.lighting(x)
+    exemplars, flash_only = _hwc(out.exemplars[0]), _hwc(out.flash_only[0])
+    timings["lighting"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    result = extract_sg(
+        exemplars, bundle.facts.env_roughness, config=extract_config or bundle.config.extract_config()
+    )
+    timings["extract"] = time.perf_counter() - t0
+    return exemplars, flash_only, result.env, timings
+
+
+@torch.no_grad()
+def predict(
+    bundle: ModelBundle,
+    flash,
+    noflash,
+    far_flash=None,
+    far_noflash=None,
+    *,
+    extract_config=None,
+    fixed_roughness: float | None = None,
+) -> Prediction:
+    """Maps and lighting from photos at the model grid (see the module docstring).
+
+    ``flash``, ``noflash`` (None: flash-only mode), ``far_flash``, ``far_noflash``: (H, W, 3)
+    linear float32 with H = W = ``bundle.resolution``. A near-far model needs the far pair; a near
+    model refuses it. ``fixed_roughness``: exemplars at a fixed roughness instead of the adaptive
+    selection (ablation).
+    """
+    if bundle.kind != "ebrenv":
+        raise InputError(
+            f"predict: a '{bundle.kind}' model; flash/no-flash prediction needs an 'ebrenv' model"
+        )
+    size = bundle.resolution
+    flash = _image("flash", flash, size)
+    near_far = bundle.lighting.config.num_shots == 4
+    has_far = far_flash is not None or far_noflash is not None
+    if has_far and not near_far:
+        raise InputError(
+            "predict: this model takes near captures only; leave out the far flash/no-flash shots"
+        )
+    if near_far and noflash is not None and (far_flash is None or far_noflash is None):
+        raise InputError("predict: this near-far model needs the far flash and far no-flash shots")
+    sel_cfg = bundle.config.select_config()
+    timings: dict[str, float] = {}
+    env, exemplars, far_fo = None, [], None
+    if noflash is None:
+        nf = np.zeros_like(flash)
+        fo = flash
+    else:
+        nf = _image("noflash", noflash, size)
+        far = (
+            [_image(n, a, size) for n, a in (("far_flash", far_flash), ("far_noflash", far_noflash))]
+            if near_far
+            else [None, None]
+        )
+        ex, fo, env, t = estimate_lighting(bundle, flash, nf, *far, extract_config=extract_config)
+        exemplars = list(ex)
+        timings.update(t)
+        if near_far:
+            far_fo = np.maximum(far[0] - far[1], 0.0)
+    t0 = time.perf_counter()
+    env_sel, point_sel = select_pair(env, None if noflash is None else nf, fo, sel_cfg, fixed_roughness)
+    timings["select"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    from ..nets.drwrap import lobes_from_env
+    from .renders import cascade_forward
+
+    dev = bundle.device
+    env_images = env_sel.images if env_sel is not None else np.zeros((3, size, size, 3), np.float32)
+    if near_far and noflash is None:  # flash-only mode of a near-far model: black far pair
+        far, far_fo = [np.zeros_like(flash)] * 2, np.zeros_like(flash)
+    photos = [flash, nf] + (list(far) if near_far else [])
+    out = cascade_forward(
+        bundle.cascade,
+        _chw(nf, dev),
+        _chw(fo, dev),
+        _chw(env_images, dev),
+        _chw(point_sel.images, dev),
+        torch.cat([_chw(p, dev) for p in photos], dim=1),
+        [lobes_from_env(env, dev)],
+        bundle.facts.flash_intensity,
+        None if far_fo is None else _chw(far_fo, dev),
+    )
+    maps = out.maps.to_svbrdf(0, source="ebr_mitsuba network")
+    timings["cascade"] = time.perf_counter() - t0
+    return Prediction(maps, env, exemplars, fo, {"env": env_sel, "point": point_sel}, timings)
+
+
+__all__ = [
+    "Prediction",
+    "SHIPPED_MODEL",
+    "estimate_lighting",
+    "load_model",
+    "pick_device",
+    "predict",
+    "select_pair",
+    "shipped_model_path",
+]

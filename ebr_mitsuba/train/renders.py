@@ -1,0 +1,113 @@
+"""The cascade's two renderers, built the same way for training and inference.
+
+* ``render_diffuse_flash(normal, diffuse)`` (specular image = flash-only − this):
+  :func:`ebr_mitsuba.nets.torch_brdf.near_flash_diffuse` at the data set's nominal flash intensity.
+  The photos' exposure is unknown at inference, so no exposure is applied (the network sees the
+  residual exposure factor, ±0.5 EV in the shipped training data, in its inputs and learns it).
+* ``render_photos(maps) -> (B, 3P, H, W)`` (the refinement's residuals), photos in the order
+  (flash, no-flash[, far flash, far no-flash]):
+
+  ``flash = k · R_point(maps, I = 1) + R_env(maps, lobes)``, ``no-flash = R_env(maps, lobes)``
+
+  where ``R_env`` is the Dr.Jit closed-form SG render through ``dr.wrap``
+  (:func:`ebr_mitsuba.nets.drwrap.render_maps`; gradients reach the maps), ``R_point`` the exact
+  torch point-light render, and ``k`` per sample the least-squares flash scale
+  ``k = Σ f·r / Σ r²`` of the flash-only image ``f`` against ``r = R_point(maps, I = 1)``
+  (:func:`flash_scale`, no gradient): it absorbs flash intensity × exposure, which photos do not
+  record. The lobes are in the photos' units: the ground truth × exposure × white balance in
+  stage 1 (:func:`photo_unit_lobes`), the SGs extracted from the (photo-unit) exemplars in stage 2
+  and at inference.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import torch
+
+from ..geometry import far_shot, near_shot
+from ..nets import Maps
+from ..nets import torch_brdf as tb
+
+
+def photo_unit_lobes(lobes: Sequence[torch.Tensor], gains: torch.Tensor) -> list[torch.Tensor]:
+    """Lobes (K_b, 7) with the amplitudes multiplied by per-sample RGB gains (B, 3)."""
+    out = []
+    for b, lb in enumerate(lobes):
+        lb = lb.clone()
+        lb[:, 4:7] = lb[:, 4:7] * gains[b].to(lb.dtype)
+        out.append(lb)
+    return out
+
+
+def _point(maps: Maps, far: bool) -> torch.Tensor:
+    shot = far_shot(True) if far else near_shot(True)
+    return tb.render_point_light(maps, shot.flash, 1.0, shot.camera)
+
+
+@torch.no_grad()
+def flash_scale(maps: Maps, flash_only: torch.Tensor, far: bool = False) -> torch.Tensor:
+    """Per-sample least-squares ``k`` (B,) with ``k · R_point(maps, I = 1) ≈ flash_only`` (≥ 0)."""
+    r = _point(maps.detach(), far)
+    num = (r * flash_only).sum(dim=(1, 2, 3))
+    den = (r * r).sum(dim=(1, 2, 3)).clamp_min(1e-12)
+    return (num / den).clamp_min(0.0)
+
+
+def diffuse_flash_renderer(intensity: float) -> Callable:
+    return tb.near_flash_diffuse(intensity)
+
+
+def photo_renderer(
+    lobes: Sequence[torch.Tensor | None],
+    flash_only: torch.Tensor,
+    far_flash_only: torch.Tensor | None = None,
+    num_photos: int = 2,
+) -> Callable[[Maps], torch.Tensor]:
+    """``render_photos`` for :class:`ebr_mitsuba.nets.Cascade` (see the module docstring).
+
+    ``lobes``: per sample (K_b, 7) in photo units (None / K = 0: no environment); ``flash_only``
+    (B, 3, H, W): the flash-only image the flash scale is fitted to (``far_flash_only`` for the far
+    pair when ``num_photos`` = 4).
+    """
+    from ..nets.drwrap import render_maps
+
+    def render_photos(maps: Maps) -> torch.Tensor:
+        out = []
+        for far in (False, True) if num_photos == 4 else (False,):
+            target = far_flash_only if far else flash_only
+            k = flash_scale(maps, target, far)
+            env = render_maps(maps, lobes, far_shot(False) if far else near_shot(False))
+            out += [k[:, None, None, None] * _point(maps, far) + env, env]
+        return torch.cat(out, dim=1)
+
+    return render_photos
+
+
+def cascade_forward(
+    cascade,
+    noflash: torch.Tensor,
+    flash_only: torch.Tensor,
+    env_exemplars: torch.Tensor | None,
+    point_exemplars: torch.Tensor | None,
+    photos: torch.Tensor,
+    lobes: Sequence[torch.Tensor | None],
+    flash_intensity: float,
+    far_flash_only: torch.Tensor | None = None,
+):
+    """Run :class:`ebr_mitsuba.nets.Cascade` with the renderers of this module (training and
+    inference call this one function). Shapes as in :meth:`Cascade.forward`; ``lobes`` per sample
+    in photo units."""
+    c = cascade.config if not hasattr(cascade, "module") else cascade.module.config
+    return cascade(
+        noflash,
+        flash_only,
+        env_exemplars if c.use_exemplars else None,
+        point_exemplars if c.use_exemplars else None,
+        render_diffuse_flash=diffuse_flash_renderer(flash_intensity),
+        photos=photos,
+        render_photos=photo_renderer(lobes, flash_only, far_flash_only, c.num_photos),
+    )
+
+
+__all__ = ["cascade_forward", "diffuse_flash_renderer", "flash_scale", "photo_renderer", "photo_unit_lobes"]

@@ -1,0 +1,660 @@
+"""`ebr estimate`: input checks and every bad-input case of the issue, the pipeline's outputs and
+report, tiling, refinement and the demo/gallery plumbing.
+
+The network is replaced by a fake inference module (the documented ``load_model``/``predict``
+contract) that returns plausible maps and a two-lobe environment, so these tests need no trained
+model; ``test_real_model_end_to_end`` (slow) runs the shipped one. Captures are rendered at
+48-64 px with the fast renderer (exact for the flash term, closed-form SG environment).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import types
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ebr_mitsuba.cli import main
+from ebr_mitsuba.errors import InputError
+from ebr_mitsuba.geometry import far_shot, near_shot
+from ebr_mitsuba.imageio import write_exr, write_png
+from ebr_mitsuba.sgenv import SGEnvironment
+from ebr_mitsuba.svbrdf import SVBRDF
+
+GRID = 48
+ENV = SGEnvironment(
+    np.array([[0.5, 0.3, 0.81], [0.0, 0.0, 1.0]]),
+    np.array([60.0, 1.5]),
+    np.array([[8.0, 7.5, 7.0], [0.25, 0.3, 0.4]]),
+)
+
+
+# -- fake inference ---------------------------------------------------------------------------------
+
+
+class FakeBundle:
+    resolution = GRID
+
+
+@dataclass
+class FakePrediction:
+    maps: SVBRDF
+    env: SGEnvironment | None
+    env_exemplars: list = field(default_factory=list)
+    flash_only: np.ndarray | None = None
+    selection: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
+
+
+def _fake_module(calls: list):
+    mod = types.ModuleType("ebr_mitsuba.train.inference")
+
+    def load_model(path):
+        if path is not None and Path(path).read_bytes()[:9] != b"FAKE-CKPT":
+            raise InputError(
+                f"{path}: not an ebr model checkpoint (wrong kind); give a checkpoint of `ebr train`"
+            )
+        return FakeBundle()
+
+    def predict(bundle, flash, noflash, far_flash=None, far_noflash=None, *, extract_config=None):
+        calls.append({"shape": flash.shape, "noflash": noflash is not None, "far": far_flash is not None})
+        assert flash.shape == (GRID, GRID, 3) and flash.dtype == np.float32
+        fo = flash if noflash is None else np.maximum(flash - noflash, 0)
+        lum = fo.mean(axis=-1, keepdims=True)
+        diffuse = np.clip(0.5 * fo / (lum.mean() * 2 + 1e-6), 0, 1)
+        h, w = flash.shape[:2]
+        maps = SVBRDF(
+            normal=np.broadcast_to(np.float32([0, 0, 1]), (h, w, 3)).copy(),
+            diffuse=diffuse,
+            specular=np.full((h, w, 3), 0.04, np.float32),
+            roughness=np.full((h, w), 0.5, np.float32),
+        )
+        env = None if noflash is None else ENV.scaled(0.8)
+        return FakePrediction(
+            maps, env, [fo * 0.1, fo * 0.2], fo, {"roughness": [0.2, 0.6]}, {"lighting": 0.01}
+        )
+
+    mod.load_model, mod.predict = load_model, predict
+    return mod
+
+
+@pytest.fixture
+def fake_net(monkeypatch):
+    calls: list = []
+    monkeypatch.setitem(sys.modules, "ebr_mitsuba.train.inference", _fake_module(calls))
+    return calls
+
+
+# -- synthetic captures -----------------------------------------------------------------------------
+
+
+def _material(n: int, seed: int = 3) -> SVBRDF:
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:n, 0:n] / n
+    checks = ((np.floor(x * 4) + np.floor(y * 4)) % 2)[..., None]
+    # Checks modulated by random blocks of 7x7 cells: not periodic, so alignment is well posed.
+    from ebr_mitsuba.imageio import resize_area
+
+    blocks = 0.6 + 0.4 * resize_area(rng.random((7, 7, 1)).astype(np.float32), (n, n))
+    diffuse = (0.55 * checks + 0.1 * (1 - checks)) * blocks * np.float32(
+        [1.0, 0.75, 0.5]
+    ) + 0.02 * rng.random((n, n, 3))
+    return SVBRDF(
+        normal=np.broadcast_to(np.float32([0, 0, 1]), (n, n, 3)).copy(),
+        diffuse=diffuse.astype(np.float32),
+        specular=np.full((n, n, 3), 0.05, np.float32),
+        roughness=(0.3 + 0.2 * x).astype(np.float32),
+    )
+
+
+def _render(m: SVBRDF, shots) -> dict:
+    from ebr_mitsuba.render import render_numpy
+
+    return {s.name: render_numpy(m, ENV, s) for s in shots}
+
+
+def _write_capture(tmp_path: Path, n: int = GRID, far: bool = False, suffix: str = ".exr") -> dict[str, Path]:
+    shots = [near_shot(True), near_shot(False)] + ([far_shot(True), far_shot(False)] if far else [])
+    paths = {}
+    for name, img in _render(_material(n), shots).items():
+        p = tmp_path / f"{name}{suffix}"
+        if suffix == ".exr":
+            write_exr(p, img)
+        else:
+            write_png(p, img / max(float(img.max()), 1e-6) * 0.9)
+        paths[name] = p
+    return paths
+
+
+def _estimate(args, capsys):
+    code = main(["estimate", *[str(a) for a in args]])
+    cap = capsys.readouterr()
+    return code, cap.out, cap.err
+
+
+def _assert_refused(code, err, out_dir: Path):
+    assert code == 2
+    lines = [line for line in err.strip().splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("ebr estimate: error:"), err
+    assert "Traceback" not in err
+    assert not out_dir.exists()
+    assert not list(out_dir.parent.glob(f".{out_dir.name}*")), "partial output left behind"
+
+
+# -- bad input: exit 2, one line, no output directory -----------------------------------------------
+
+
+def test_mismatched_sizes(tmp_path, capsys, fake_net):
+    paths = _write_capture(tmp_path)
+    small = tmp_path / "small.exr"
+    write_exr(small, np.ones((GRID // 2, GRID, 3), np.float32))
+    out = tmp_path / "out"
+    code, _, err = _estimate(["--flash", paths["flash"], "--noflash", small, "--out", out], capsys)
+    _assert_refused(code, err, out)
+    assert "differ in size" in err
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_nonfinite_exr(tmp_path, capsys, fake_net, bad):
+    paths = _write_capture(tmp_path)
+    img = np.ones((GRID, GRID, 3), np.float32) * 0.1
+    img[3, 5, 1] = bad
+    write_exr(tmp_path / "bad.exr", img)
+    out = tmp_path / "out"
+    code, _, err = _estimate(
+        ["--flash", paths["flash"], "--noflash", tmp_path / "bad.exr", "--out", out], capsys
+    )
+    _assert_refused(code, err, out)
+    assert "NaN or Inf" in err
+
+
+def _jpeg_bytes(n=GRID) -> bytes:
+    import io
+
+    from PIL import Image
+
+    buf = io.BytesIO()
+    Image.fromarray((np.random.default_rng(0).random((n, n, 3)) * 255).astype(np.uint8)).save(buf, "JPEG")
+    return buf.getvalue()
+
+
+@pytest.mark.parametrize("content", ["truncated", "garbage"])
+def test_unreadable_jpeg(tmp_path, capsys, fake_net, content):
+    data = _jpeg_bytes()
+    (tmp_path / "f.jpg").write_bytes(data[: len(data) // 2] if content == "truncated" else b"not a jpeg" * 50)
+    (tmp_path / "nf.jpg").write_bytes(data)
+    out = tmp_path / "out"
+    code, _, err = _estimate(
+        ["--flash", tmp_path / "f.jpg", "--noflash", tmp_path / "nf.jpg", "--out", out], capsys
+    )
+    _assert_refused(code, err, out)
+    assert "f.jpg" in err
+
+
+def test_missing_file(tmp_path, capsys, fake_net):
+    paths = _write_capture(tmp_path)
+    out = tmp_path / "out"
+    code, _, err = _estimate(
+        ["--flash", paths["flash"], "--noflash", tmp_path / "nope.exr", "--out", out], capsys
+    )
+    _assert_refused(code, err, out)
+    assert "no such file" in err
+
+
+@pytest.mark.parametrize(
+    "extra, needle",
+    [
+        (["--far-flash", "{flash}"], "needs --far-noflash"),
+        (["--far-noflash", "{noflash}"], "needs --far-flash"),
+        (["--exposure-ratio", "2", "--noflash", None], "needs --noflash"),
+        (["--refine-lobes", "--refine-steps", "5", "--noflash", None], "needs --noflash"),
+        (["--refine-lobes"], "needs --refine-steps"),
+        (["--no-tile", "--max-size", "512"], "conflicts"),
+        (["--noflash", "{flash}"], "same file"),
+    ],
+)
+def test_conflicting_flags(tmp_path, capsys, fake_net, extra, needle):
+    paths = _write_capture(tmp_path)
+    args = ["--flash", paths["flash"], "--noflash", paths["noflash"], "--out", tmp_path / "out"]
+    extra = [e.format(**{k: str(v) for k, v in paths.items()}) if isinstance(e, str) else e for e in extra]
+    if "--noflash" in extra:  # drop or replace the default --noflash
+        i = extra.index("--noflash")
+        value = extra[i + 1]
+        del extra[i : i + 2]
+        j = args.index("--noflash")
+        del args[j : j + 2]
+        if value is not None:
+            args += ["--noflash", value]
+    code, _, err = _estimate(args + extra, capsys)
+    _assert_refused(code, err, tmp_path / "out")
+    assert needle in err
+
+
+def test_wrong_kind_checkpoint(tmp_path, capsys, fake_net):
+    paths = _write_capture(tmp_path)
+    ckpt = tmp_path / "model.pt"
+    ckpt.write_bytes(b'{"something": "else"}')
+    out = tmp_path / "out"
+    code, _, err = _estimate(
+        ["--flash", paths["flash"], "--noflash", paths["noflash"], "--checkpoint", ckpt, "--out", out], capsys
+    )
+    _assert_refused(code, err, out)
+    assert "wrong kind" in err
+    code, _, err = _estimate(
+        ["--flash", paths["flash"], "--checkpoint", tmp_path / "missing.pt", "--out", out], capsys
+    )
+    _assert_refused(code, err, out)
+
+
+def test_misaligned_and_swapped(tmp_path, capsys, fake_net):
+    paths = _write_capture(tmp_path)
+    from ebr_mitsuba.imageio import read_exr
+
+    nf = read_exr(paths["noflash"])
+    write_exr(tmp_path / "shifted.exr", np.roll(nf, (4, -3), axis=(0, 1)))
+    out = tmp_path / "out"
+    code, _, err = _estimate(
+        ["--flash", paths["flash"], "--noflash", tmp_path / "shifted.exr", "--out", out], capsys
+    )
+    _assert_refused(code, err, out)
+    assert "shifted by (-3, +4)" in err
+    code, _, err = _estimate(["--flash", paths["noflash"], "--noflash", paths["flash"], "--out", out], capsys)
+    _assert_refused(code, err, out)
+    assert "swapped" in err
+
+
+def test_out_dir_not_an_estimate_is_refused(tmp_path, capsys, fake_net):
+    paths = _write_capture(tmp_path)
+    out = tmp_path / "busy"
+    out.mkdir()
+    (out / "precious.txt").write_text("keep")
+    code, _, err = _estimate(["--flash", paths["flash"], "--noflash", paths["noflash"], "--out", out], capsys)
+    assert code == 2 and "not an estimate directory" in err
+    assert (out / "precious.txt").read_text() == "keep"
+
+
+# -- input checks as functions ----------------------------------------------------------------------
+
+
+def test_shift_and_highlight_estimates():
+    from ebr_mitsuba.estimate.inputs import estimate_shift, highlight_position
+
+    imgs = _render(_material(64), [near_shot(True), near_shot(False)])
+    dy, dx, prom = estimate_shift(imgs["flash"], np.roll(imgs["noflash"], (5, -2), axis=(0, 1)))
+    assert (dy, dx) == (5.0, -2.0) and prom > 5
+    assert estimate_shift(imgs["flash"], imgs["noflash"])[:2] == (0.0, 0.0)
+    x, y = highlight_position(imgs["flash"] - imgs["noflash"])["position"]
+    assert np.hypot(x, y) < 0.1  # co-located flash, fronto-parallel: the lobe is centred
+    # An off-centre light (flash to the right): the peak moves right.
+    from ebr_mitsuba.geometry import Shot
+    from ebr_mitsuba.render import render_numpy
+
+    side = render_numpy(_material(64), None, Shot("s", (0, 0, 2.414), 45.0, (1.0, 0.0, 1.5), 10.0, env=False))
+    fit = highlight_position(side)
+    x = fit["position"][0]
+    assert fit["fit_r2"] > 0.3
+    assert x > 0.35
+
+
+def test_exif_exposure_and_saturation(tmp_path):
+    from PIL import Image
+
+    from ebr_mitsuba.estimate.inputs import load_inputs
+
+    imgs = _render(_material(GRID), [near_shot(True), near_shot(False)])
+    scale = 0.8 / float(imgs["flash"].max())
+
+    def save(name, img, t):
+        from ebr_mitsuba.imageio import linear_to_srgb
+
+        codes = np.rint(linear_to_srgb(np.clip(img * scale, 0, 1)) * 255).astype(np.uint8)
+        exif = Image.Exif()
+        exif.get_ifd(0x8769).update({0x829A: t, 0x829D: 2.0, 0x8827: 100})
+        Image.fromarray(codes).save(tmp_path / name, "JPEG", quality=98, exif=exif)
+
+    save("f.jpg", imgs["flash"], 0.01)
+    save("nf.jpg", imgs["noflash"] * 4, 0.04)  # four times the exposure
+    inp = load_inputs(tmp_path / "f.jpg", tmp_path / "nf.jpg")
+    assert inp.exposure["noflash"]["source"] == "exif"
+    assert inp.exposure["noflash"]["factor"] == pytest.approx(0.25)
+    ratio = inp.images["noflash"].mean() / (imgs["noflash"].mean() * scale)
+    assert ratio == pytest.approx(1.0, rel=0.05)
+    # --exposure-ratio overrides and says so.
+    inp = load_inputs(tmp_path / "f.jpg", tmp_path / "nf.jpg", exposure_ratio=2.0)
+    assert inp.exposure["noflash"]["factor"] == 0.5 and any("overrides" in w for w in inp.warnings)
+    # Saturation: a clipped block is masked and warned about; a clipped frame is refused.
+    sat = imgs["flash"] * scale
+    sat[:10, :10] = 1.0
+    write_png(tmp_path / "sat.png", sat)
+    write_png(tmp_path / "nf.png", imgs["noflash"] * scale)
+    inp = load_inputs(tmp_path / "sat.png", tmp_path / "nf.png")
+    assert inp.saturated[:10, :10].all() and inp.saturated.mean() < 0.1
+    assert any("saturated" in w for w in inp.warnings)
+    write_png(tmp_path / "white.png", np.ones((GRID, GRID, 3), np.float32))
+    with pytest.raises(InputError, match="saturated"):
+        load_inputs(tmp_path / "white.png", tmp_path / "nf.png")
+
+
+def test_fov_range():
+    from ebr_mitsuba.estimate.inputs import check_fov
+
+    assert check_fov(45) == 45.0
+    for bad in (5.0, 150.0, float("nan")):
+        with pytest.raises(InputError, match="--fov"):
+            check_fov(bad)
+
+
+# -- tiling -----------------------------------------------------------------------------------------
+
+
+def test_tiles_cover_and_blend_exactly():
+    from ebr_mitsuba.estimate.tiling import ramp, tile_starts, tiled_maps
+
+    for n, tile, ov in ((1024, 256, 32), (300, 64, 16), (64, 64, 8)):
+        starts = tile_starts(n, tile, ov)
+        covered = np.zeros(n, bool)
+        for s in starts:
+            covered[s : s + tile] = True
+        assert covered.all() and starts[-1] == n - tile
+        assert all(b - a <= tile - ov for a, b in zip(starts, starts[1:]))
+    assert ramp(64, 16).min() > 0 and ramp(64, 16)[16:48].tolist() == [1.0] * 32
+    # Per-tile maps that are crops of one global field blend back to that field exactly.
+    n = 160
+    rng = np.random.default_rng(0)
+    field = rng.random((n, n, 3)).astype(np.float32)
+
+    def predict_tile(crops):
+        d = crops["flash"]
+        t = d.shape[0]
+        return SVBRDF(
+            normal=np.broadcast_to(np.float32([0, 0, 1]), (t, t, 3)).copy(),
+            diffuse=d,
+            specular=d * 0.5,
+            roughness=d[..., 0],
+        )
+
+    maps = tiled_maps(predict_tile, {"flash": field}, 64, 24)
+    np.testing.assert_allclose(maps.diffuse, field, atol=1e-6)
+    np.testing.assert_allclose(maps.roughness, field[..., 0], atol=1e-6)
+
+
+# -- refinement -------------------------------------------------------------------------------------
+
+
+def test_refinement_lowers_rerender_error():
+    from ebr_mitsuba.estimate.refine import RefineConfig, ShotTarget, refine
+
+    n = 32
+    truth = _material(n)
+    shots = [near_shot(True), near_shot(False)]
+    photos = _render(truth, shots)
+    mask = np.ones((n, n), bool)
+    targets = [ShotTarget(s, photos[s.name], mask) for s in shots]
+    start = SVBRDF(
+        normal=truth.normal,
+        diffuse=np.clip(truth.diffuse * 0.6 + 0.1, 0, 1),
+        specular=np.full((n, n, 3), 0.2, np.float32),
+        roughness=np.full((n, n), 0.7, np.float32),
+    )
+    result = refine(start, ENV, targets, RefineConfig(steps=40))
+    assert result.after["mean"]["rmse"] < 0.6 * result.before["mean"]["rmse"]
+    assert result.history and result.history[-1][0] == 40
+    # Maps stay valid (the constructor validated them) and move towards the truth.
+    err = lambda m: float(np.sqrt(np.mean((m.diffuse - truth.diffuse) ** 2)))  # noqa: E731
+    assert err(result.maps) < err(start)
+    # With lobes: the lobes move and the error drops at least as much from a wrong environment.
+    res2 = refine(start, ENV.scaled(1.5), targets, RefineConfig(steps=40, lobes=True))
+    assert res2.after["mean"]["rmse"] < res2.before["mean"]["rmse"]
+    assert not np.allclose(res2.env.amplitude, ENV.scaled(1.5).amplitude)
+
+
+# -- the whole pipeline -----------------------------------------------------------------------------
+
+
+def _check_outputs(out: Path, summary: dict, flash_only: bool = False, far: bool = False):
+    for name in ("normal", "diffuse", "specular", "roughness"):
+        assert (out / "maps" / f"{name}.exr").is_file() and (out / "maps" / f"{name}.png").is_file()
+    assert (out / "report.html").is_file() and (out / "estimate.json").is_file()
+    assert (out / "env.json").is_file() != flash_only
+    assert (out / "env_sphere.png").is_file() != flash_only
+    shots = ["flash"] + ([] if flash_only else ["noflash"]) + (["far_flash", "far_noflash"] if far else [])
+    for s in shots:
+        for sub, ext in (("rerender", "exr"), ("rerender", "png"), ("residual", "exr"), ("residual", "png")):
+            assert (out / sub / f"{s}.{ext}").is_file(), f"{sub}/{s}.{ext}"
+    assert list((out / "novel").glob("*.png"))
+    html = (out / "report.html").read_text()
+    assert 'src="data:image/png;base64,' in html and 'src="http' not in html and 'src="maps' not in html
+    for f in summary["files"]:
+        assert (out / f).exists(), f
+    assert set(summary["timings"]) >= {"inputs", "model", "predict", "rerender", "outputs", "report"}
+
+
+def test_estimate_near_with_refinement_json(tmp_path, capsys, fake_net):
+    paths = _write_capture(tmp_path)
+    out = tmp_path / "est"
+    code, stdout, err = _estimate(
+        [
+            "--flash",
+            paths["flash"],
+            "--noflash",
+            paths["noflash"],
+            "--out",
+            out,
+            "--refine-steps",
+            "15",
+            "--flash-intensity",
+            "10",
+            "--json",
+        ],
+        capsys,
+    )
+    assert code == 0, err
+    summary = json.loads(stdout)
+    _check_outputs(out, summary)
+    assert summary["capture"] == "near" and summary["flash"]["flash"]["source"] == "--flash-intensity"
+    before = summary["rerender_error"]["network"]["mean"]["rmse"]
+    after = summary["rerender_error"]["refined"]["mean"]["rmse"]
+    assert after < before
+    assert (out / "maps_network" / "diffuse.exr").is_file()
+    html = (out / "report.html").read_text()
+    assert "Refinement" in html and f"{before:.4g}" in html and f"{after:.4g}" in html
+    assert fake_net and fake_net[0]["noflash"]
+    # A second run replaces the earlier estimate directory.
+    code, _, err = _estimate(["--flash", paths["flash"], "--noflash", paths["noflash"], "--out", out], capsys)
+    assert code == 0, err
+    assert not (out / "maps_network").exists()
+
+
+def test_estimate_near_far_from_capture_dir(tmp_path, capsys, fake_net):
+    from ebr_mitsuba.capture import capture
+
+    cap = tmp_path / "cap"
+    capture(_material(GRID), ENV, "near-far", cap, spp=4, res=GRID, progress=False)
+    out = tmp_path / "est"
+    code, stdout, err = _estimate(
+        [
+            "--flash",
+            cap / "flash.exr",
+            "--noflash",
+            cap / "noflash.exr",
+            "--far-flash",
+            cap / "far_flash.exr",
+            "--far-noflash",
+            cap / "far_noflash.exr",
+            "--out",
+            out,
+            "--json",
+        ],
+        capsys,
+    )
+    assert code == 0, err
+    summary = json.loads(stdout)
+    _check_outputs(out, summary, far=True)
+    assert summary["capture"] == "near-far"
+    assert summary["flash"]["flash"] == {"intensity": 10.0, "source": "capture.json"}
+    assert summary["flash"]["far_flash"]["source"] == "capture.json"
+    assert fake_net[0]["far"]
+
+
+def test_estimate_flash_only_png(tmp_path, capsys, fake_net):
+    paths = _write_capture(tmp_path, suffix=".png")
+    out = tmp_path / "est"
+    code, stdout, err = _estimate(["--flash", paths["flash"], "--out", out, "--json"], capsys)
+    assert code == 0, err
+    summary = json.loads(stdout)
+    _check_outputs(out, summary, flash_only=True)
+    assert summary["capture"] == "flash-only" and summary["lobes"] == 0
+    assert summary["flash"]["flash"]["source"] == "fitted"
+    assert not fake_net[0]["noflash"]
+
+
+def test_estimate_tiled(tmp_path, capsys, fake_net):
+    paths = _write_capture(tmp_path, n=80)
+    out = tmp_path / "est"
+    code, stdout, err = _estimate(
+        [
+            "--flash",
+            paths["flash"],
+            "--noflash",
+            paths["noflash"],
+            "--out",
+            out,
+            "--tile-overlap",
+            "16",
+            "--json",
+        ],
+        capsys,
+    )
+    assert code == 0, err
+    summary = json.loads(stdout)
+    assert summary["tiled"] and summary["resolution"] == 80 and "tiles" in summary["timings"]
+    assert len(fake_net) == 1 + 4  # one global pass + 2x2 tiles
+    from ebr_mitsuba.imageio import read_exr
+
+    assert read_exr(out / "maps" / "diffuse.exr").shape == (80, 80, 3)
+    # --no-tile: one pass at the grid.
+    code, stdout, err = _estimate(
+        ["--flash", paths["flash"], "--noflash", paths["noflash"], "--out", out, "--no-tile", "--json"],
+        capsys,
+    )
+    assert code == 0, err
+    assert json.loads(stdout)["resolution"] == GRID
+
+
+@pytest.mark.slow
+def test_real_model_end_to_end(tmp_path, capsys):
+    """The shipped model on a generated near capture (needs ebr_mitsuba.train.inference)."""
+    inference = pytest.importorskip("ebr_mitsuba.train.inference")
+    from ebr_mitsuba.estimate.resample import model_grid
+
+    grid = model_grid(inference.load_model(None))
+    paths = _write_capture(tmp_path, n=grid)
+    out = tmp_path / "est"
+    code, stdout, err = _estimate(
+        [
+            "--flash",
+            paths["flash"],
+            "--noflash",
+            paths["noflash"],
+            "--out",
+            out,
+            "--refine-steps",
+            "20",
+            "--json",
+        ],
+        capsys,
+    )
+    assert code == 0, err
+    summary = json.loads(stdout)
+    _check_outputs(out, summary)
+    ckpt = tmp_path / "wrong.pt"
+    import torch
+
+    torch.save({"not": "a model"}, ckpt)
+    code, _, err = _estimate(
+        ["--flash", paths["flash"], "--checkpoint", ckpt, "--out", tmp_path / "o2"], capsys
+    )
+    _assert_refused(code, err, tmp_path / "o2")
+
+
+# -- demo -------------------------------------------------------------------------------------------
+
+
+def test_demo_with_fake_network(tmp_path, capsys, fake_net):
+    out = tmp_path / "demo"
+    code = main(["demo", "--out", str(out), "--spp", "4", "--refine-steps", "10", "--json"])
+    cap = capsys.readouterr()
+    assert code == 0, cap.err
+    result = json.loads(cap.out)
+    assert set(result["map_error"]["network"]) == {"normal", "diffuse", "specular", "roughness", "mean"}
+    assert result["map_error"]["refined"] is not None
+    assert result["lighting_error"]["rmse"] >= 0
+    assert (out / "estimate" / "report.html").is_file() and (out / "demo.png").is_file()
+    assert (out / "capture" / "maps" / "diffuse.exr").is_file()
+    assert "per-map RMSE" in cap.err and "report:" in cap.err
+    html = (out / "estimate" / "report.html").read_text()
+    assert "Against ground truth" in html
+
+
+def test_demo_material_matches_the_default_scene():
+    """The demo's ground truth is the checkerboard Mitsuba renders from scenes/default.xml: same
+    colour layout (bottom-left square colour 0)."""
+    from ebr_mitsuba.commands.demo import CHECKER_COLORS, default_material
+
+    m = default_material(64)
+    np.testing.assert_allclose(m.diffuse[-1, 0], CHECKER_COLORS[0], atol=1e-6)
+    np.testing.assert_allclose(m.diffuse[-1, 8], CHECKER_COLORS[1], atol=1e-6)
+    np.testing.assert_allclose(m.diffuse[0, 0], CHECKER_COLORS[1], atol=1e-6)  # 8 squares: top-left odd
+
+
+# -- gallery ----------------------------------------------------------------------------------------
+
+
+def _gallery(argv, capsys):
+    """``ebr gallery`` through its module (cli.COMMANDS lists it once the lead registers it)."""
+    import argparse
+
+    from ebr_mitsuba.commands import gallery
+
+    parser = argparse.ArgumentParser()
+    gallery.add_arguments(parser)
+    code = gallery.run(parser.parse_args([str(a) for a in argv]))
+    return code, capsys.readouterr()
+
+
+def test_gallery_page(tmp_path, capsys, fake_net):
+    photos = tmp_path / "photos"
+    photos.mkdir()
+    imgs = _render(_material(GRID), [near_shot(True, env=False)])
+    write_png(photos / "b.png", imgs["flash"] / imgs["flash"].max() * 0.8)
+    write_png(photos / "a.png", imgs["flash"][::-1] / imgs["flash"].max() * 0.7)
+    (photos / "LICENSE.txt").write_text("MIT")
+    code, cap = _gallery([photos, "--docs", tmp_path / "docs", "--json"], capsys)
+    assert code == 0
+    result = json.loads(cap.out)
+    assert [p["name"] for p in result["photos"]] == ["a.png", "b.png"]
+    page = (tmp_path / "docs" / "gallery.md").read_text()
+    assert "![a.png](gallery/a.png)" in page and "## b.png" in page
+    assert (tmp_path / "docs" / "gallery" / "a.png").is_file()
+    assert all(not c["noflash"] for c in fake_net)
+    from ebr_mitsuba.estimate.gallery import find_photos
+
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(InputError, match="no PNG"):
+        find_photos(empty)
+    with pytest.raises(InputError, match="no such photo folder"):
+        find_photos(tmp_path / "missing")
+
+
+@pytest.mark.slow
+def test_gallery_real_photos(tmp_path, capsys, data_dir):
+    """The 13 real flash-only photos with the shipped model."""
+    pytest.importorskip("ebr_mitsuba.train.inference")
+    code, cap = _gallery([data_dir / "photos" / "flash_only", "--docs", tmp_path, "--json"], capsys)
+    assert code == 0
+    assert len(json.loads(cap.out)["photos"]) == 13

@@ -1,0 +1,359 @@
+"""Training, checkpoints, inference and evaluation (ebr_mitsuba.train, ebr train, ebr eval).
+
+Tiny data sets (4 samples at 32², fast renderer) are generated once per module from
+configs/data_tiny*.toml; every training config of configs/ trains two steps per phase on them.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tomllib
+import torch
+
+from ebr_mitsuba.cli import main
+from ebr_mitsuba.errors import ConfigError, InputError
+from ebr_mitsuba.train import checkpoint as ck
+from ebr_mitsuba.train.config import PHASES, load_config, parse_config
+
+ROOT = Path(__file__).resolve().parents[1]
+CONFIGS = ROOT / "configs"
+TRAIN_CONFIGS = sorted(p.name for p in CONFIGS.glob("*.toml") if not p.name.startswith("data_"))
+SLOW_CONFIGS = {"train_paper.toml", "dualloss.toml"}  # full-size networks: seconds per step on a CPU
+FIXTURE_CONFIG = "train_tiny.toml"  # trained by the tiny_model fixture (checked there)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_torch_thread():
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(previous)
+
+
+def _generate(name: str, out: Path) -> Path:
+    from ebr_mitsuba.data.config import load_config as load_data_config
+    from ebr_mitsuba.data.generate import generate
+
+    generate(load_data_config(CONFIGS / name), out, progress=False)
+    return out
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory) -> Path:
+    return _generate("data_tiny.toml", tmp_path_factory.mktemp("tiny") / "data")
+
+
+@pytest.fixture(scope="module")
+def tiny5(tmp_path_factory) -> Path:
+    return _generate("data_tiny_five_light.toml", tmp_path_factory.mktemp("tiny5") / "data")
+
+
+def _smoke_doc(name: str, data: Path) -> dict:
+    """A config of configs/ cut down to two steps per phase on the tiny data."""
+    doc = tomllib.loads((CONFIGS / name).read_text())
+    doc["data"] = {"train": str(data)}
+    train = doc.setdefault("train", {})
+    train.update(batch_size=2, log_every=1, checkpoint_every=1, threads=1, init="")
+    if doc.get("kind", "ebrenv") == "ebrenv":
+        stages = doc.setdefault("stages", {})
+        for phase in PHASES:
+            stages[phase] = 0 if stages.get(phase, 1) == 0 else 2
+        stages["finetune_samples"] = 1
+        doc["extract"] = {"iters": 3, "max_lobes": 4}
+    else:
+        train["steps"] = 2
+    return doc
+
+
+def _train(doc: dict, out: Path, resume: bool = False) -> dict:
+    from ebr_mitsuba.train.trainer import Trainer
+
+    return Trainer(parse_config(doc, "smoke.toml"), out, resume=resume).run()
+
+
+def _check_smoke(summary: dict, out: Path, name: str) -> None:
+    assert summary["phases"], name
+    for phase, info in summary["phases"].items():
+        assert info["steps"] == 2 and np.isfinite(info["final_loss"]), (name, phase)
+    rows = (out / "log.csv").read_text().splitlines()
+    assert rows[0].split(",")[:3] == ["phase", "step", "loss"] and len(rows) == 1 + 2 * len(summary["phases"])
+    assert (out / "model.pt").is_file()
+
+
+@pytest.fixture(scope="module")
+def tiny_model(tiny, tmp_path_factory) -> Path:
+    """configs/train_tiny.toml, two steps of every phase (the smoke test of that config)."""
+    out = tmp_path_factory.mktemp("run") / "tiny"
+    summary = _train(_smoke_doc(FIXTURE_CONFIG, tiny), out)
+    _check_smoke(summary, out, FIXTURE_CONFIG)
+    assert list(summary["phases"]) == list(PHASES)
+    return out / "model.pt"
+
+
+# -- config -------------------------------------------------------------------------------------
+
+
+def test_every_shipped_config_parses(monkeypatch, tmp_path):
+    monkeypatch.setenv("EBR_TRAIN_DATA", str(tmp_path))
+    monkeypatch.setenv("EBR_INIT", str(tmp_path / "init.pt"))
+    for name in TRAIN_CONFIGS:
+        config = load_config(CONFIGS / name)
+        assert config.data.train == str(tmp_path), name
+        assert config.to_dict()["kind"] in ("ebrenv", "dualloss")
+
+
+def test_config_errors_name_file_and_key(tmp_path, monkeypatch):
+    monkeypatch.delenv("EBR_NOT_SET", raising=False)
+    cases = {
+        '[data]\ntrain = "x"\n[train]\nlr = "fast"\n': r"bad\.toml: \[train\]\.lr: expected float",
+        '[data]\ntrain = "x"\n[train]\nbatchsize = 2\n': r"\[train\]\.batchsize: unknown key",
+        'kind = "ebrenv"\n[data]\n': r"\[data\]\.train is required",
+        'kind = "gan"\n[data]\ntrain = "x"\n': r"kind = 'gan'",
+        '[data]\ntrain = "$EBR_NOT_SET/x"\n': r"\$EBR_NOT_SET is not set",
+        '[data]\ntrain = "x"\n[model]\nwidth = 3\n': r"\[model\]\.width: unknown key",
+        '[data]\ntrain = "x"\n[extract]\niterations = 3\n': r"\[extract\]",
+        '[data]\ntrain = "x"\n[optim]\n': r"'optim' is not a known table",
+    }
+    for text, pattern in cases.items():
+        path = tmp_path / "bad.toml"
+        path.write_text(text)
+        with pytest.raises(ConfigError, match=pattern):
+            load_config(path)
+    with pytest.raises(ConfigError, match="no such config file"):
+        load_config(tmp_path / "missing.toml")
+
+
+def test_config_defaults_and_relative_paths(tmp_path):
+    path = tmp_path / "c.toml"
+    path.write_text('[data]\ntrain = "data/set"\n')
+    c = load_config(path)
+    assert c.kind == "ebrenv" and c.data.train == str(tmp_path / "data" / "set")
+    assert c.train.batch_size == 8 and c.stages.lighting == 1000 and c.loss.render == 0.0
+    assert c.select_config().env_mode == "sg" and c.extract_config().max_lobes == 16
+
+
+# -- checkpoints ----------------------------------------------------------------------------------
+
+
+def test_checkpoint_round_trip_and_errors(tiny_model, tmp_path):
+    data = ck.load_checkpoint(tiny_model, expect_kind="ebrenv")
+    assert data["kind"] == "ebrenv" and data["step"]["phase"] == "finetune"
+    assert set(data["model"]) == {"lighting", "cascade"}
+    assert data["data"]["resolution"] == 32 and len(data["git"]) in (7, 40) or data["git"] == "unknown"
+    assert data["config"]["kind"] == "ebrenv"
+    with pytest.raises(InputError, match=f"{tiny_model}: a 'ebrenv' checkpoint.*wrong kind"):
+        ck.load_checkpoint(tiny_model, expect_kind="dualloss")
+    bad = tmp_path / "corrupt.pt"
+    bad.write_bytes(tiny_model.read_bytes()[:1000])
+    with pytest.raises(InputError, match="corrupt.pt: not a readable checkpoint"):
+        ck.load_checkpoint(bad)
+    foreign = tmp_path / "foreign.pt"
+    torch.save({"not": "a model"}, foreign)
+    with pytest.raises(InputError, match="foreign.pt: not an ebr model checkpoint"):
+        ck.load_checkpoint(foreign)
+    with pytest.raises(InputError, match="no such checkpoint"):
+        ck.load_checkpoint(tmp_path / "none.pt")
+    exported = ck.export_model(tiny_model, tmp_path / "export.pt")
+    small = ck.load_checkpoint(exported)
+    assert small["optimizer"] is None
+    assert all(v.dtype == torch.float16 for v in small["model"]["cascade"].values() if v.is_floating_point())
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # atomic writes leave nothing
+
+
+# -- training -------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "name",
+    [n for n in TRAIN_CONFIGS if n not in SLOW_CONFIGS | {FIXTURE_CONFIG}]
+    + [pytest.param(n, marks=pytest.mark.slow) for n in sorted(SLOW_CONFIGS)],
+)
+def test_every_config_trains_two_steps(name, tiny, tiny5, tmp_path):
+    doc = _smoke_doc(
+        name, tiny5 if tomllib.loads((CONFIGS / name).read_text()).get("kind") == "dualloss" else tiny
+    )
+    if name == "dualloss.toml":
+        doc["model"]["levels"] = 5  # 32² tiny data
+    _check_smoke(_train(doc, tmp_path / "run"), tmp_path / "run", name)
+
+
+def test_resume_continues_bit_exactly(tiny, tmp_path, monkeypatch):
+    from ebr_mitsuba.train.trainer import Trainer
+
+    doc = _smoke_doc("train_tiny.toml", tiny)
+    doc["stages"] = {"lighting": 5, "diffuse": 0, "specular": 0, "refinement": 0, "finetune": 0}
+    _train(doc, tmp_path / "straight")
+    calls = {"n": 0}
+    original = Trainer._loss
+
+    def interrupted(self, *args):
+        calls["n"] += 1
+        if calls["n"] == 2:  # interrupted in step 2: mid-way through the first permutation
+            raise KeyboardInterrupt
+        return original(self, *args)
+
+    monkeypatch.setattr(Trainer, "_loss", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        _train(doc, tmp_path / "resumed")
+    monkeypatch.setattr(Trainer, "_loss", original)
+    assert ck.load_checkpoint(tmp_path / "resumed" / "last.pt")["step"]["step"] == 1
+    with pytest.raises(InputError, match="not empty; pass --resume"):
+        _train(doc, tmp_path / "resumed")
+    _train(doc, tmp_path / "resumed", resume=True)
+    a = ck.load_checkpoint(tmp_path / "straight" / "model.pt")["model"]["lighting"]
+    b = ck.load_checkpoint(tmp_path / "resumed" / "model.pt")["model"]["lighting"]
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    other = dict(doc, train={**doc["train"], "lr": 5e-4})
+    with pytest.raises(InputError, match="another config"):
+        _train(other, tmp_path / "resumed", resume=True)
+
+
+def test_cli_train_and_wrong_setup(tiny, tiny5, tmp_path, capsys):
+    doc = _smoke_doc("train_tiny.toml", tiny)
+    doc["stages"] = {"lighting": 2, "diffuse": 0, "specular": 0, "refinement": 0, "finetune": 0}
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(_toml(doc))
+    assert main(["train", str(cfg), "--out", str(tmp_path / "o"), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["phases"]["lighting"]["steps"] == 2
+    doc["data"]["train"] = str(tiny5)
+    cfg.write_text(_toml(doc))
+    assert main(["train", str(cfg), "--out", str(tmp_path / "o2")]) == 2
+    assert "a 'five-light' data set" in capsys.readouterr().err
+
+
+def _toml(doc: dict) -> str:
+    lines = []
+    for key, value in doc.items():
+        if not isinstance(value, dict):
+            lines.append(f"{key} = {json.dumps(value)}")
+    for key, value in doc.items():
+        if isinstance(value, dict):
+            lines.append(f"[{key}]")
+            for k, v in value.items():
+                if isinstance(v, dict):
+                    v = "{ " + ", ".join(f"{a} = {json.dumps(b)}" for a, b in v.items()) + " }"
+                    lines.append(f"{k} = {v}")
+                else:
+                    lines.append(f"{k} = {json.dumps(v)}")
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.slow
+def test_ddp_two_cpu_processes(tiny, tmp_path):
+    doc = _smoke_doc("train_tiny.toml", tiny)
+    doc["stages"] = {"lighting": 2, "diffuse": 2, "specular": 0, "refinement": 0, "finetune": 0}
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(_toml(doc))
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    ebr = shutil.which("ebr", path=str(Path(sys.executable).parent))
+    cmd = [
+        sys.executable,
+        "-m",
+        "torch.distributed.run",
+        "--standalone",
+        "--nproc_per_node",
+        "2",
+        ebr,
+        "train",
+        str(cfg),
+        "--out",
+        str(tmp_path / "ddp"),
+        "--json",
+    ]
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    summary = json.loads((tmp_path / "ddp" / "summary.json").read_text())
+    assert summary["world_size"] == 2 and summary["phases"]["diffuse"]["steps"] == 2
+
+
+# -- inference and evaluation ----------------------------------------------------------------------
+
+
+def test_predict_and_flash_only(tiny, tiny_model):
+    from ebr_mitsuba.data.dataset import GeneratedDataset
+    from ebr_mitsuba.svbrdf import SVBRDF
+    from ebr_mitsuba.train.inference import load_model, predict
+
+    bundle = load_model(tiny_model)
+    assert bundle.resolution == 32 and not bundle.cascade.training
+    item = GeneratedDataset(tiny)[0]
+    flash, noflash = (item["photos"][k].permute(1, 2, 0).numpy() for k in (0, 1))
+    pred = predict(bundle, flash, noflash)
+    assert isinstance(pred.maps, SVBRDF) and pred.maps.shape == (32, 32)
+    assert pred.env is not None and 1 <= pred.env.num_lobes <= 4
+    assert len(pred.env_exemplars) == 4 and pred.flash_only.shape == (32, 32, 3)
+    assert pred.selection["env"].images.shape == (3, 32, 32, 3)
+    assert {"lighting", "extract", "select", "cascade"} <= set(pred.timings)
+    n = np.linalg.norm(pred.maps.normal, axis=-1)
+    assert np.allclose(n, 1, atol=1e-4) and pred.maps.diffuse.min() >= 0 and pred.maps.roughness.max() <= 1
+    fo = predict(bundle, flash, None)
+    assert fo.env is None and fo.env_exemplars == [] and fo.selection["env"] is None
+    fixed = predict(bundle, flash, noflash, fixed_roughness=0.5)
+    assert fixed.selection["env"].roughness[0] == 0.5
+    with pytest.raises(InputError, match=r"flash has shape \(16, 16, 3\); expected \(32, 32, 3\)"):
+        predict(bundle, flash[:16, :16], noflash[:16, :16])
+    with pytest.raises(InputError, match="near captures only"):
+        predict(bundle, flash, noflash, flash, noflash)
+    with pytest.raises(InputError, match="wrong kind"):
+        load_model(tiny_model, expect_kind="dualloss")
+
+
+def test_shipped_model_loads():
+    from ebr_mitsuba.train.inference import load_model, shipped_model_path
+
+    if not shipped_model_path().is_file():
+        pytest.skip("no shipped model in this checkout")
+    bundle = load_model(None)
+    assert bundle.kind == "ebrenv" and bundle.resolution >= 32
+    assert shipped_model_path().stat().st_size < 8 * 2**20
+
+
+def test_metrics_identity_and_mean_baseline(tiny):
+    from ebr_mitsuba.svbrdf import SVBRDF
+    from ebr_mitsuba.train import metrics
+    from ebr_mitsuba.train.baselines import MeanMaps
+
+    mean = MeanMaps.from_dataset(tiny)
+    m = mean.predict((32, 32))
+    pairs = metrics.rerender_pairs(0)
+    same = metrics.sample_metrics(m, m, pairs)
+    assert same["rerender_rmse"] == 0 and same["ssim"] == pytest.approx(1.0)
+    assert same["per_map_rmse"]["mean"] == 0
+    other = SVBRDF.uniform(32, 32, 0.5, 0.04, 0.3)
+    diff = metrics.sample_metrics(other, m, pairs)
+    assert diff["rerender_rmse"] > 0 and diff["ssim"] < 1 and diff["per_map_rmse"]["diffuse"] > 0
+    assert pairs.count == 30 and torch.equal(metrics.rerender_pairs(0).lights, pairs.lights)
+
+
+def test_cli_eval_json(tiny, tiny_model, capsys):
+    code = main(
+        [
+            "eval",
+            "--checkpoint",
+            str(tiny_model),
+            "--data",
+            str(tiny),
+            "--limit",
+            "1",
+            "--baseline-mean",
+            str(tiny),
+            "--json",
+        ]
+    )
+    assert code == 0
+    out = json.loads(capsys.readouterr().out)
+    assert set(out["per_map_rmse"]) == {"normal", "diffuse", "roughness", "specular", "mean"}
+    assert out["n"] == 1 and len(out["per_sample"]) == 1 and out["seconds_per_sample"] > 0
+    assert 0 <= out["ssim"] <= 1 and out["rerender_rmse"] > 0
+    assert out["baselines"]["mean_maps"]["n"] == 1 and "procedural" in out["groups"]
+    assert main(["eval", "--checkpoint", str(tiny_model), "--data", str(tiny), "--limit", "-1"]) == 2
+    assert "--limit -1" in capsys.readouterr().err
