@@ -38,13 +38,13 @@ test-all: llvm $(STAMP)
 	$(PY) -m pytest -q -m "" $(PYTEST_ARGS)
 
 bench: llvm $(STAMP)
-	$(VENV)/bin/ebr bench all --out docs/bench
+	$(VENV)/bin/ebr bench all
 
 # Regenerates every generated page: command and plugin references, the validation table, the benchmarks.
 docs: llvm $(STAMP)
 	$(PY) -m ebr_mitsuba.docgen --out docs
 	$(VENV)/bin/ebr validate --markdown docs/validation_table.md
-	$(VENV)/bin/ebr bench all --out docs/bench
+	$(VENV)/bin/ebr bench all
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check ebr_mitsuba plugins tests

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import importlib.util
 import sys
 
 from .errors import EbrError
@@ -28,6 +27,7 @@ COMMANDS = (
     "extract-sg",
     "select-exemplars",
     "estimate",
+    "gallery",
     "validate",
     "bench",
     "train",
@@ -45,8 +45,6 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMANDS:
         modname = f"{__package__}.commands.{name.replace('-', '_')}"
-        if importlib.util.find_spec(modname) is None:  # command not built in this version
-            continue
         module = importlib.import_module(modname)
         p = sub.add_parser(module.NAME, help=module.HELP, description=module.__doc__,
                            formatter_class=argparse.RawDescriptionHelpFormatter)

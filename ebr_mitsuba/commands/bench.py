@@ -1,6 +1,6 @@
 """Measure speed against error and write the tables and plots under docs/bench/.
 
-  ebr bench [renderer|generate|extract-sg|estimate|all] [--out docs/bench] [--quick] [--json]
+  ebr bench [renderer|generate|extract-sg|estimate|models|all] [--out DIR] [--quick] [--json]
 
 Each benchmark writes ``OUT/<name>.md`` (a Markdown table with the reference it was measured
 against, and the PNG plots it links) and returns its path:
@@ -10,7 +10,12 @@ against, and the PNG plots it links) and returns its path:
 * ``generate``: data-generation samples/s per core for the ``mitsuba`` and ``fast`` renderers, and
   the error of ``fast`` against ``mitsuba`` on the same samples;
 * ``extract-sg``: the SG-extraction ablation, the exemplar roughness study and the timing;
-* ``estimate``: the estimate pipeline's stages, time against re-render error.
+* ``estimate``: the estimate pipeline's stages, time against re-render error;
+* ``models``: the shipped model against its baselines and ablations on the held-out set, and its
+  training summary (writes ``docs/models.md``; needs the data sets and runs named by
+  ``EBR_TRAIN_DATA``, ``EBR_TEST_DATA``, ``EBR_RUNS``).
+
+``--out`` defaults to ``docs/bench`` (``docs`` for ``models``).
 
 ``all`` runs every benchmark this version has. ``--quick`` runs a reduced version (small sizes,
 for smoke tests; its numbers are not the documented ones). ``--json`` prints
@@ -32,7 +37,7 @@ from ._common import emit_json, say
 NAME = "bench"
 HELP = "measure speed against error; write docs/bench/*.md"
 
-BENCHMARKS = ("renderer", "generate", "extract-sg", "estimate")
+BENCHMARKS = ("renderer", "generate", "extract-sg", "estimate", "models")
 
 
 def _module_name(name: str) -> str:
@@ -47,7 +52,8 @@ def available() -> list[str]:
 def add_arguments(p) -> None:
     p.add_argument("which", nargs="?", default="all", choices=(*BENCHMARKS, "all"),
                    help="benchmark to run (default: all)")
-    p.add_argument("--out", type=Path, default=Path("docs/bench"), help="output folder (default docs/bench)")
+    p.add_argument("--out", type=Path, default=None,
+                   help="output folder (default docs/bench; docs for 'models')")
     p.add_argument("--quick", action="store_true", help="reduced sizes, for smoke tests")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
 
@@ -62,7 +68,8 @@ def run(args) -> int:
         kwargs = {"quick": True} if args.quick and "quick" in inspect.signature(module.run).parameters else {}
         say(f"[bench] {name} ...")
         t0 = time.perf_counter()
-        path = module.run(args.out, **kwargs)
+        out = args.out if args.out is not None else Path(getattr(module, "DEFAULT_OUT", "docs/bench"))
+        path = module.run(out, **kwargs)
         seconds[name] = time.perf_counter() - t0
         written[name] = str(path)
         say(f"[bench] {name}: wrote {path} ({seconds[name]:.0f} s)")

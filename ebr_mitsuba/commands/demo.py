@@ -103,31 +103,64 @@ def lighting_error(estimated, truth, res: int = 64) -> dict:
     return {"rmse": rmse, "rel_rmse": rmse / rms if rms > 0 else float("nan")}
 
 
-def demo_strip(est_dir: Path, path: Path) -> Path:
-    """One PNG strip: flash, no-flash, re-render, diffuse, normal, roughness, lighting."""
-    from PIL import Image
+def demo_strip(out: Path, path: Path, true_env=None) -> Path:
+    """The README picture: a labelled two-row figure. Top: the two photos and the ground-truth
+    maps and lighting; bottom: the re-render of the flash photo and the estimated maps and
+    lighting (refined where refinement ran). Images are the PNG previews the capture and the
+    estimate wrote (``out/capture/maps``, ``out/estimate``)."""
+    import tempfile
 
-    names = [
-        est_dir / "inputs/flash.png",
-        est_dir / "inputs/noflash.png",
-        est_dir / "rerender/flash.png",
-        est_dir / "maps/diffuse.png",
-        est_dir / "maps/normal.png",
-        est_dir / "maps/roughness.png",
-        est_dir / "env_sphere.png",
-    ]
-    tiles = []
-    for p in names:
-        if Path(p).is_file():
-            with Image.open(p) as im:
-                tiles.append(im.convert("RGB").resize((192, 192), Image.Resampling.NEAREST))
-    strip = Image.new("RGB", (196 * len(tiles), 196), "white")
-    for k, t in enumerate(tiles):
-        strip.paste(t, (196 * k + 2, 2))
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..estimate.outputs import env_pictures
     from ..fsutil import atomic_path
+    from ..imageio import read_ldr
 
+    def read_png(p):  # display values (the PNG's code values), grey maps as RGB
+        img = read_ldr(p, "linear")
+        return np.repeat(img, 3, axis=2) if img.shape[2] == 1 else img
+
+    est, cap = out / "estimate", out / "capture" / "maps"
+    with tempfile.TemporaryDirectory() as tmp:
+        true_sphere = None
+        if true_env is not None:
+            env_pictures(true_env, Path(tmp))
+            true_sphere = read_png(Path(tmp) / "env_sphere.png")
+        rows = [
+            [
+                ("flash photo", read_png(est / "inputs/flash.png")),
+                ("no-flash photo", read_png(est / "inputs/noflash.png")),
+                ("true diffuse", read_png(cap / "diffuse.png")),
+                ("true normal", read_png(cap / "normal.png")),
+                ("true roughness", read_png(cap / "roughness.png")),
+                ("true specular", read_png(cap / "specular.png")),
+                ("true lighting", true_sphere),
+            ],
+            [
+                ("re-render (flash)", read_png(est / "rerender/flash.png")),
+                ("re-render (no-flash)", read_png(est / "rerender/noflash.png")),
+                ("estimated diffuse", read_png(est / "maps/diffuse.png")),
+                ("estimated normal", read_png(est / "maps/normal.png")),
+                ("estimated roughness", read_png(est / "maps/roughness.png")),
+                ("estimated specular", read_png(est / "maps/specular.png")),
+                ("estimated lighting", read_png(est / "env_sphere.png") if (est / "env_sphere.png").is_file() else None),
+            ],
+        ]
+    fig, axes = plt.subplots(2, 7, figsize=(14, 4.3))
+    for r, row in enumerate(rows):
+        for c, (title, img) in enumerate(row):
+            ax = axes[r, c]
+            ax.axis("off")
+            ax.set_title(title, fontsize=9)
+            if img is not None:
+                ax.imshow(np.clip(img, 0, 1), interpolation="nearest")
+    fig.tight_layout()
     with atomic_path(path) as tmp:
-        strip.save(tmp, "PNG")
+        fig.savefig(tmp, format="png", dpi=80)
+    plt.close(fig)
     return path
 
 
@@ -181,7 +214,7 @@ def run(args) -> int:
         else None
     )
     light = lighting_error(est_env, env)
-    demo_strip(out / "estimate", out / "demo.png")
+    demo_strip(out, out / "demo.png", env)
     timings["total"] = round(time.perf_counter() - t0, 3)
     result = {
         "out": str(out),

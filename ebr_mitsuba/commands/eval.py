@@ -1,7 +1,7 @@
 """Evaluate a trained model on a generated data set (DESIGN §3 metrics).
 
   ebr eval [--checkpoint CKPT] --data DIR [--json] [--limit N] [--seed S]
-           [--baseline-mean TRAIN_DIR] [--fixed-roughness R]
+           [--baseline-mean TRAIN_DIR] [--baseline-checkpoint NAME=CKPT ...] [--fixed-roughness R]
 
 For every sample the model sees only the photos; its maps are scored against the ground truth:
 
@@ -20,6 +20,9 @@ Options:
   --limit N                 first N samples only [all]
   --seed S                  seed of the re-render light/view pairs [0]
   --baseline-mean TRAIN_DIR also score baseline (a): the per-pixel mean maps of that data set
+  --baseline-checkpoint NAME=CKPT
+                            also score another checkpoint on the same samples and pairs, reported
+                            as baselines[NAME] (e.g. no-exemplars=runs/noex/model.pt); repeatable
   --fixed-roughness R       exemplars at roughness R instead of the adaptive selection (ablation)
 """
 
@@ -41,6 +44,13 @@ def add_arguments(parser) -> None:
         default=None,
         metavar="TRAIN_DIR",
         help="also score the per-pixel mean maps of this (training) data set",
+    )
+    parser.add_argument(
+        "--baseline-checkpoint",
+        action="append",
+        default=[],
+        metavar="NAME=CKPT",
+        help="also score this checkpoint on the same samples (repeatable)",
     )
     parser.add_argument(
         "--fixed-roughness",
@@ -72,7 +82,16 @@ def run(args) -> int:
         raise InputError(f"--limit {args.limit}: give a count >= 0")
     if args.fixed_roughness is not None and not 0.0 <= args.fixed_roughness <= 1.0:
         raise InputError(f"--fixed-roughness {args.fixed_roughness}: give a roughness in [0, 1]")
+    others = []
+    for spec in args.baseline_checkpoint:
+        name, sep, path = spec.partition("=")
+        if not sep or not name or not path:
+            raise InputError(f"--baseline-checkpoint {spec!r}: write NAME=CHECKPOINT, e.g. no-exemplars=runs/noex/model.pt")
+        if name == "mean_maps" or name in (o[0] for o in others):
+            raise InputError(f"--baseline-checkpoint {spec!r}: the name {name!r} is used twice; give each its own")
+        others.append((name, path))
     bundle = load_model(args.checkpoint, expect_kind=None)
+    loaded = [(name, load_model(path, expect_kind=bundle.kind)) for name, path in others]
     if bundle.kind == "dualloss" and args.fixed_roughness is not None:
         raise InputError("--fixed-roughness applies to ebrenv models (a dualloss model has no exemplars)")
     result = evaluate(
@@ -95,8 +114,14 @@ def run(args) -> int:
             seed=args.seed,
         )
         base["groups"] = group_means(base["per_sample"], material_group)
-        result["baselines"] = {"mean_maps": base}
+        result.setdefault("baselines", {})["mean_maps"] = base
         say(_line("mean maps", base))
+    for name, other in loaded:
+        base = evaluate(model_predictor(other), args.data, limit=args.limit, seed=args.seed, progress=progress)
+        base["checkpoint"] = str(dict(others)[name])
+        base["groups"] = group_means(base["per_sample"], material_group)
+        result.setdefault("baselines", {})[name] = base
+        say(_line(name, base))
     if args.json:
         emit_json(result)
     return 0

@@ -1,6 +1,6 @@
 """Train the EBREnv networks or the dual-loss estimator from a TOML config.
 
-  ebr train CONFIG.toml [--out DIR] [--resume] [--json]
+  ebr train CONFIG.toml [--out DIR] [--resume] [--export FILE] [--json]
 
 The config (schema: docs/train.md, defaults in ebr_mitsuba/train/config.py) names the data set
 (`ebr generate`), the networks, the steps per phase and the losses. The run writes into DIR
@@ -15,7 +15,10 @@ The config (schema: docs/train.md, defaults in ebr_mitsuba/train/config.py) name
 
 Options:
   --out DIR      output directory (must be new or empty unless --resume)
-  --resume       continue the run in DIR from last.pt (same config)
+  --resume       continue the run in DIR from last.pt (same config); a finished run only
+                 rewrites model.pt (and --export)
+  --export FILE  also write the deployable copy of model.pt (float16 weights, no optimizer
+                 state): how ebr_mitsuba/models/ebrenv_small.pt is made
   --json         print summary.json on stdout
 
 Data-parallel: `torchrun --nproc_per_node N -m ebr_mitsuba.cli train CONFIG.toml --out DIR`
@@ -37,6 +40,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("config", help="training config (TOML), e.g. configs/train_small.toml")
     parser.add_argument("--out", default=None, help="output directory [runs/<config name>]")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out from last.pt")
+    parser.add_argument("--export", default=None, metavar="FILE",
+                        help="also write a deployable float16 copy of the final model to FILE")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
 
 
@@ -45,7 +50,12 @@ def run(args) -> int:
     from ..train.ddp import shutdown
     from ..train.trainer import Trainer
 
+    from ..errors import InputError
+    from ..train.checkpoint import export_model
+
     config = load_config(args.config)
+    if args.export and not Path(args.export).resolve().parent.is_dir():
+        raise InputError(f"--export {args.export}: its folder does not exist; create it or choose another path")
     out = Path(args.out) if args.out else Path("runs") / Path(args.config).stem
     trainer = Trainer(config, out, resume=args.resume, log=say, progress=progress)
     try:
@@ -54,6 +64,9 @@ def run(args) -> int:
         shutdown(trainer.dist)
     if trainer.dist.main:
         say(f"wrote {out / 'model.pt'} ({summary.get('seconds', 0):.0f} s, {summary.get('samples')} samples)")
+        if args.export:
+            path = export_model(out / "model.pt", args.export)
+            say(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB, float16)")
         if args.json:
             emit_json(summary)
     return 0

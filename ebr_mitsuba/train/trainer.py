@@ -143,6 +143,12 @@ class Trainer:
             self.bundle.load_state(data["model"], str(last))
             self.state = dict(data["step"])
             self.resume_data = data
+            old = self.out / "summary.json"
+            if old.is_file():  # keep the phases an earlier (interrupted or finished) part ran
+                try:
+                    self.summary["phases"].update(json.loads(old.read_text()).get("phases", {}))
+                except (OSError, ValueError):
+                    pass
             self.log(f"resuming at phase {self.state['phase']} step {self.state['step']}")
         else:
             others = [p for p in self.out.iterdir() if p.name != "cache"] if self.out.exists() else []
