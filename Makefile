@@ -4,6 +4,7 @@ VENV  := .venv
 PY    := $(VENV)/bin/python
 STAMP := $(VENV)/.ebr-installed
 PYTEST_ARGS ?=
+EBR_DATA_DIR ?= ../shared/data
 
 .PHONY: demo test test-all bench docs lint bootstrap llvm clean
 
@@ -44,6 +45,8 @@ bench: llvm $(STAMP)
 docs: llvm $(STAMP)
 	$(PY) -m ebr_mitsuba.docgen --out docs
 	$(VENV)/bin/ebr validate --markdown docs/validation_table.md
+	rm -rf /tmp/ebr-demo-docs && $(VENV)/bin/ebr demo --out /tmp/ebr-demo-docs --docs docs
+	$(VENV)/bin/ebr gallery $(EBR_DATA_DIR)/photos/flash_only --docs docs
 	$(VENV)/bin/ebr bench all
 
 lint: $(STAMP)

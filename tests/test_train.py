@@ -224,6 +224,17 @@ def test_cli_train_and_wrong_setup(tiny, tiny5, tmp_path, capsys):
     assert main(["train", str(cfg), "--out", str(tmp_path / "o"), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["phases"]["lighting"]["steps"] == 2
+    # a finished run: --resume only rewrites model.pt, keeps the summary, --export writes float16
+    exported = tmp_path / "shipped.pt"
+    assert main(["train", str(cfg), "--out", str(tmp_path / "o"), "--resume", "--export", str(exported)]) == 0
+    assert json.loads((tmp_path / "o" / "summary.json").read_text())["phases"]["lighting"]["steps"] == 2
+    payload = torch.load(exported, weights_only=False)
+    assert payload["optimizer"] is None
+    assert {t.dtype for net in payload["model"].values() for t in net.values() if t.is_floating_point()} == {
+        torch.float16
+    }
+    assert main(["train", str(cfg), "--out", str(tmp_path / "o"), "--resume", "--export", str(tmp_path / "no" / "x.pt")]) == 2
+    assert "its folder does not exist" in capsys.readouterr().err
     doc["data"]["train"] = str(tiny5)
     cfg.write_text(_toml(doc))
     assert main(["train", str(cfg), "--out", str(tmp_path / "o2")]) == 2
@@ -346,6 +357,8 @@ def test_cli_eval_json(tiny, tiny_model, capsys):
             "1",
             "--baseline-mean",
             str(tiny),
+            "--baseline-checkpoint",
+            f"again={tiny_model}",
             "--json",
         ]
     )
@@ -355,5 +368,43 @@ def test_cli_eval_json(tiny, tiny_model, capsys):
     assert out["n"] == 1 and len(out["per_sample"]) == 1 and out["seconds_per_sample"] > 0
     assert 0 <= out["ssim"] <= 1 and out["rerender_rmse"] > 0
     assert out["baselines"]["mean_maps"]["n"] == 1 and "procedural" in out["groups"]
+    # the same checkpoint as a baseline scores the same maps on the same pairs
+    again = out["baselines"]["again"]
+    assert again["per_map_rmse"] == pytest.approx(out["per_map_rmse"], rel=1e-6)
+    assert again["rerender_rmse"] == pytest.approx(out["rerender_rmse"], rel=1e-6)
+    for bad in ("again", "again=", f"mean_maps={tiny_model}"):
+        assert main(["eval", "--checkpoint", str(tiny_model), "--data", str(tiny), "--baseline-checkpoint", bad]) == 2
+        assert "--baseline-checkpoint" in capsys.readouterr().err
     assert main(["eval", "--checkpoint", str(tiny_model), "--data", str(tiny), "--limit", "-1"]) == 2
     assert "--limit -1" in capsys.readouterr().err
+
+
+def test_bench_models_page(tiny, tiny_model, tmp_path, monkeypatch):
+    """``ebr bench models`` on tiny data: every predictor scored, the page and plots written."""
+    from ebr_mitsuba.bench import models
+    from ebr_mitsuba.train import inference
+
+    for name in ("EBR_TRAIN_DATA", "EBR_TEST_DATA", "EBR_RUNS"):
+        monkeypatch.delenv(name, raising=False)
+    assert "EBR_TRAIN_DATA" in models.unavailable()
+    runs = tmp_path / "runs"
+    (runs / "small").mkdir(parents=True)
+    shutil.copy(tiny_model.parent / "log.csv", runs / "small" / "log.csv")
+    for run in ("noex", "nocas"):
+        (runs / run).mkdir()
+        shutil.copy(tiny_model, runs / run / "model.pt")
+    monkeypatch.setenv("EBR_TRAIN_DATA", str(tiny))
+    monkeypatch.setenv("EBR_TEST_DATA", str(tiny))
+    monkeypatch.setenv("EBR_RUNS", str(runs))
+    monkeypatch.setattr(inference, "shipped_model_path", lambda: tiny_model)
+    assert models.unavailable() is None
+    page = models.run(tmp_path / "docs", quick=True, log=lambda msg: None)
+    text = page.read_text()
+    for row in ("| shipped model |", "| (a) training-set mean maps |", "| (b) without exemplars |",
+                "| without cascade |", "| without adaptive selection"):
+        assert row in text
+    assert "quick run" in text and "| lighting | 2 |" in text
+    assert (tmp_path / "docs" / "models_loss.png").is_file() and (tmp_path / "docs" / "models_eval.png").is_file()
+    shutil.rmtree(runs / "nocas")
+    with pytest.raises(InputError, match="nocas"):
+        models.run(tmp_path / "docs2", quick=True, log=lambda msg: None)

@@ -50,6 +50,12 @@ EBR_INIT=$EBR_RUNS/small/after_lighting.pt ebr train configs/train_small_nocasca
 ebr bench models            # this page"""
 
 
+def unavailable() -> str | None:
+    """Why this benchmark cannot run here (``ebr bench all`` skips it then), or None."""
+    missing = [n for n in ("EBR_TRAIN_DATA", "EBR_TEST_DATA", "EBR_RUNS") if not os.environ.get(n)]
+    return f"set {', '.join('$' + n for n in missing)}; see docs/models.md" if missing else None
+
+
 def _env_path(name: str) -> Path:
     value = os.environ.get(name)
     if not value:
@@ -73,7 +79,8 @@ def training_summary(run_dir: Path) -> dict:
     log = run_dir / "log.csv"
     if not log.is_file():
         raise InputError(f"{log}: missing; the run in {run_dir} did not log")
-    rows = list({(r["phase"], r["step"]): r for r in csv.DictReader(log.open())}.values())  # resumed runs log twice
+    with log.open() as f:  # a step logged twice (interrupted run, then its resume): keep the later row
+        rows = list({(r["phase"], r["step"]): r for r in csv.DictReader(f)}.values())
     phases: dict[str, dict] = {}
     for r in rows:
         p = phases.setdefault(r["phase"], {"steps": 0, "losses": [], "seconds": 0.0, "rates": []})
@@ -312,4 +319,4 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
     return path
 
 
-__all__ = ["DEFAULT_OUT", "FIXED_ROUGHNESS", "run", "training_summary"]
+__all__ = ["DEFAULT_OUT", "FIXED_ROUGHNESS", "run", "training_summary", "unavailable"]

@@ -65,6 +65,10 @@ def run(args) -> int:
     written, seconds = {}, {}
     for name in names:
         module = importlib.import_module(_module_name(name))
+        reason = module.unavailable() if hasattr(module, "unavailable") else None
+        if reason and args.which == "all":
+            say(f"[bench] {name}: skipped ({reason})")
+            continue
         kwargs = {"quick": True} if args.quick and "quick" in inspect.signature(module.run).parameters else {}
         say(f"[bench] {name} ...")
         t0 = time.perf_counter()

@@ -177,8 +177,17 @@ def _check_prediction(pred, grid: int, flash_only: bool):
     return maps, env if env is not None else SGEnvironment.empty()
 
 
+def model_takes_far(bundle) -> bool:
+    """Whether the model's lighting net reads the far pair (a near-far model)."""
+    lighting = getattr(bundle, "lighting", None)
+    config = getattr(lighting, "config", None)
+    return getattr(config, "num_shots", 4) == 4
+
+
 def _predict(inf, bundle, inputs: Inputs):
     im = inputs.images
+    if not model_takes_far(bundle):  # a near model: the far pair serves the re-renders and refinement
+        return inf.predict(bundle, im["flash"], im.get("noflash"))
     return inf.predict(bundle, im["flash"], im.get("noflash"), im.get("far_flash"), im.get("far_noflash"))
 
 
@@ -224,6 +233,12 @@ def run_estimate(
     inf = inference_module()
     bundle = inf.load_model(cfg.checkpoint)
     grid = model_grid(bundle)
+    if inputs.has_far and not model_takes_far(bundle):
+        inputs.warnings.append(
+            "the model reads near captures only: the far shots are used for the re-renders and the "
+            "refinement, not for the prediction"
+        )
+        log(f"warning: {inputs.warnings[-1]}")
     work = working_size(inputs.size[0], grid, cfg.tile, cfg.max_size)
     stage("model", t0)
 

@@ -105,11 +105,11 @@ class Trainer:
         self.state = {"phase": None, "step": 0, "done": []}
         self.resume_data = None
         self._resume_order = None
+        self.summary: dict = {"phases": {}}
         self._prepare_out()
         self.weights = MapWeights(
             config.loss.normal, config.loss.diffuse, config.loss.specular, config.loss.roughness
         )
-        self.summary: dict = {"phases": {}}
 
     # -- setup --------------------------------------------------------------------------------
 
