@@ -28,6 +28,7 @@ CONFIGS = ROOT / "configs"
 TRAIN_CONFIGS = sorted(p.name for p in CONFIGS.glob("*.toml") if not p.name.startswith("data_"))
 SLOW_CONFIGS = {"train_paper.toml", "dualloss.toml"}  # full-size networks: seconds per step on a CPU
 FIXTURE_CONFIG = "train_tiny.toml"  # trained by the tiny_model fixture (checked there)
+NEAR_FAR_SMOKE = "train_tiny_near_far.toml"  # trained by tests/test_train_near_far.py
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -173,13 +174,18 @@ def test_checkpoint_round_trip_and_errors(tiny_model, tmp_path):
 
 @pytest.mark.parametrize(
     "name",
-    [n for n in TRAIN_CONFIGS if n not in SLOW_CONFIGS | {FIXTURE_CONFIG}]
+    [n for n in TRAIN_CONFIGS if n not in SLOW_CONFIGS | {FIXTURE_CONFIG, NEAR_FAR_SMOKE}]
     + [pytest.param(n, marks=pytest.mark.slow) for n in sorted(SLOW_CONFIGS)],
 )
-def test_every_config_trains_two_steps(name, tiny, tiny5, tmp_path):
-    doc = _smoke_doc(
-        name, tiny5 if tomllib.loads((CONFIGS / name).read_text()).get("kind") == "dualloss" else tiny
-    )
+def test_every_config_trains_two_steps(name, tiny, tiny5, tmp_path_factory, tmp_path):
+    raw = tomllib.loads((CONFIGS / name).read_text())
+    if raw.get("kind") == "dualloss":
+        data = tiny5
+    elif raw.get("model", {}).get("capture") == "near-far":
+        data = _generate("data_tiny_near_far.toml", tmp_path_factory.mktemp("tiny_nf") / "data")
+    else:
+        data = tiny
+    doc = _smoke_doc(name, data)
     if name == "dualloss.toml":
         doc["model"]["levels"] = 5  # 32² tiny data
     _check_smoke(_train(doc, tmp_path / "run"), tmp_path / "run", name)

@@ -109,8 +109,9 @@ def loss_terms(
     n = problem.geometry.count
     lin = dr.zeros(mi.Float, n)
     lg = dr.zeros(mi.Float, n)
-    dr.scatter_reduce(dr.ReduceOp.Add, lin, dr.squared_norm(diff), img)
-    dr.scatter_reduce(dr.ReduceOp.Add, lg, dr.squared_norm(logd), img)
+    # the indices are sorted by exemplar: a packet of lanes shares its target (ReduceMode.Local)
+    dr.scatter_reduce(dr.ReduceOp.Add, lin, dr.squared_norm(diff), img, mode=dr.ReduceMode.Local)
+    dr.scatter_reduce(dr.ReduceOp.Add, lg, dr.squared_norm(logd), img, mode=dr.ReduceMode.Local)
     norm = arr["rms"] * math.sqrt(per_image)
     terms = dr.safe_sqrt(lin) / dr.maximum(norm, 1e-30) + log_weight * dr.safe_sqrt(lg / (3.0 * per_image))
     return dr.sum(arr["weights"] * terms)
@@ -126,7 +127,25 @@ def initial_params(axis: np.ndarray, sharpness: np.ndarray, amplitude: np.ndarra
     a = np.asarray(axis, np.float32)
     s = np.log(np.clip(np.asarray(sharpness, np.float64), 0.5, 2.0e4)).astype(np.float32)
     m = np.log(np.maximum(np.asarray(amplitude, np.float64), 1e-12)).astype(np.float32)
-    return [mi.Vector3f(a[:, 0], a[:, 1], a[:, 2]), mi.Float(s), mi.Color3f(m[:, 0], m[:, 1], m[:, 2])]
+    return [
+        mi.Vector3f(*(aligned(a[:, i]) for i in range(3))),
+        mi.Float(aligned(s)),
+        mi.Color3f(*(aligned(m[:, i]) for i in range(3))),
+    ]
+
+
+def aligned(a: np.ndarray) -> np.ndarray:
+    """A contiguous copy of the 1-D array ``a`` starting on a 64-byte boundary.
+
+    Dr.Jit maps numpy memory without copying and compiles the kernels that read it for the
+    pointer's alignment: numpy's 16-byte alignment made the first traced Adam step's kernels
+    differ from call to call and miss the kernel cache (0.5–1 s of compilation per call)."""
+    a = np.asarray(a).reshape(-1)
+    buf = np.empty(a.nbytes + 64, np.uint8)
+    off = (-buf.ctypes.data) % 64
+    out = buf[off : off + a.nbytes].view(a.dtype)
+    out[:] = a
+    return out
 
 
 def read_lobes(params) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -155,8 +174,11 @@ def _make_step(
     def step(params, m1, m2, t, lrs, index, arrays):
         params = [dr.detach(p) for p in params]
         dr.enable_grad(params)
+        # two lobe sets built from the same parameters: the pairs gather from one, the per-lobe
+        # irradiance reads the other, so the reverse pass is one kernel (forward module docstring)
         lobes = lobes_from_params(*params)
-        yhat = geom.render_with(lobes, index, options, arrays["view"], arrays["roughness"])
+        diffuse_lobes = lobes_from_params(*params)
+        yhat = geom.render_with(lobes, index, options, arrays["view"], arrays["roughness"], diffuse_lobes)
         if corrected == "offset":
             yhat = yhat + dr.gather(mi.Color3f, arrays["correction"], index)
         elif corrected == "ratio":
@@ -219,7 +241,7 @@ def run_adam(
             it = first + k
             decay = LR_FLOOR + (1.0 - LR_FLOOR) * 0.5 * (1.0 + math.cos(math.pi * k / iters))
             lrs = [mi.Float(lr_axis * decay), mi.Float(lr * decay), mi.Float(lr * decay)]
-            index = mi.UInt32(stratified_indices(rng, geom.count, geom.height, geom.width, grid))
+            index = mi.UInt32(aligned(stratified_indices(rng, geom.count, geom.height, geom.width, grid)))
             params, m1, m2, loss = step(params, m1, m2, mi.Float(float(k + 1)), lrs, index, arrays)
             if it % READBACK == 0:
                 history.append([it, float(loss.numpy()[0])])

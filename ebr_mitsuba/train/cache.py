@@ -6,6 +6,11 @@
 * **stage 2** (``cache/stage2/NNNNNN.npz``): the trained lighting net's flash-only image, the SGs
   :func:`ebr_mitsuba.extract.extract_sg` extracts from its exemplars, and the selection under them.
 
+Both follow :func:`ebr_mitsuba.train.inference.predict`: the lighting net takes the model's shots
+(four for a near-far model, :data:`.data.CAPTURE_SHOTS`); the selections compare with the near
+no-flash photo and the near flash-only image. (The far flash-only image is not cached: it is a
+function of the photos, :func:`.renders.far_flash_only`.)
+
 Arrays are float32, images (K, H, W, 3) as selection returns them; lobes (K, 7). A cache file
 is written atomically and reused when present (``ebr train --resume``); under DDP each rank fills
 its share. :func:`load_cache` stacks the files of samples 0 … N−1 into tensors.
@@ -48,12 +53,12 @@ def fill_stage1(root: Path, data, indices, select_config, progress=None) -> None
     from .inference import select_pair
 
     todo = [i for i in indices if not cache_file(root, "stage1", i).is_file()]
-    nf_i, fl_i = data.shot("noflash"), 0
+    nf_i = data.shot("noflash")
     for i in progress(todo, desc="stage-1 selection", unit="sample") if progress else todo:
         lobes = data.lobes(torch.tensor([i]))[0].numpy()
         env = SGEnvironment(lobes[:, :3], lobes[:, 3], lobes[:, 4:]) if len(lobes) else SGEnvironment.empty()
-        noflash = data.photos[i, nf_i].permute(1, 2, 0).numpy()
-        flash_only = data.flash_only[i, fl_i].permute(1, 2, 0).numpy()
+        noflash = data.photos[i, nf_i].clamp_min(0.0).permute(1, 2, 0).numpy()  # as predict's input check
+        flash_only = data.flash_only_of(torch.tensor([i]))[0].permute(1, 2, 0).numpy()
         env_sel, point_sel = select_pair(env, noflash, flash_only, select_config)
         _save(cache_file(root, "stage1", i), **_selection_arrays(env_sel, point_sel, noflash.shape[0]))
 
@@ -61,14 +66,16 @@ def fill_stage1(root: Path, data, indices, select_config, progress=None) -> None
 def fill_stage2(root: Path, data, indices, bundle, select_config, extract_config, progress=None) -> None:
     """Stage-2 lighting, extracted SGs and selections for ``indices`` (skipping cached ones)."""
     from ..nets.drwrap import lobes_from_env
+    from .data import CAPTURE_SHOTS
     from .inference import estimate_lighting, select_pair
 
     todo = [i for i in indices if not cache_file(root, "stage2", i).is_file()]
-    fl, nf = data.shot("flash"), data.shot("noflash")
+    names = CAPTURE_SHOTS["near-far" if bundle.lighting.config.num_shots == 4 else "near"]
     for i in progress(todo, desc="stage-2 extraction", unit="sample") if progress else todo:
-        flash = data.photos[i, fl].permute(1, 2, 0).numpy()
-        noflash = data.photos[i, nf].permute(1, 2, 0).numpy()
-        _, flash_only, env, _ = estimate_lighting(bundle, flash, noflash, extract_config=extract_config)
+        # max(·, 0) as predict's input check does
+        shots = [data.photos[i, data.shot(n)].clamp_min(0.0).permute(1, 2, 0).numpy() for n in names]
+        flash, noflash = shots[0], shots[1]
+        _, flash_only, env, _ = estimate_lighting(bundle, *shots, extract_config=extract_config)
         arrays = {"flash_only": flash_only, "sg": lobes_from_env(env).numpy()}
         if bundle.cascade.config.use_exemplars:
             arrays.update(

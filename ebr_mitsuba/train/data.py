@@ -9,12 +9,16 @@ samples, image layout):
 field                   shape                 content
 ======================  ====================  ===============================================
 ``photos``              (N, S, 3, H, W)       shots in ``shot_names`` order (linear)
-``flash_only``          (N, F, 3, H, W)       flash-only images
+``flash_only``          (N, F, 3, H, W)       flash-only images (``flash_only_names`` order)
 ``env_exemplars``       (N, E, 3, H, W)       the data set's environment exemplars
 ``maps``                (N, 10, H, W)         ground-truth maps (:data:`MAP_LAYOUT`)
 ``sg``, ``sg_mask``     (N, K, 7), (N, K)     ground-truth lobes (radiance units), padding mask
 ``gains``               (N, 3)                exposure × white balance (photo units / radiance)
 ======================  ====================  ===============================================
+
+Shots and flash-only images are looked up by name (:meth:`TrainingData.shots`,
+:meth:`TrainingData.flash_only_of`), never by position: a near data set has the shots
+:data:`CAPTURE_SHOTS` ``["near"]``, a near-far one ``["near-far"]`` (DESIGN §1).
 """
 
 from __future__ import annotations
@@ -26,11 +30,19 @@ import torch
 
 from ..errors import InputError
 
+CAPTURE_SHOTS = {
+    "near": ("flash", "noflash"),
+    "near-far": ("flash", "noflash", "far_flash", "far_noflash"),
+}
+"""The photos an EBREnv model takes, in the order of its lighting-net input and of the
+refinement's photos, by ``[model].capture``."""
+
 
 @dataclass
 class TrainingData:
     root: Path
     shot_names: list[str]
+    flash_only_names: list[str]
     photos: torch.Tensor
     flash_only: torch.Tensor
     env_exemplars: torch.Tensor
@@ -49,6 +61,28 @@ class TrainingData:
                 f"use a data set of the model's capture setup"
             )
         return self.shot_names.index(name)
+
+    def shots(self, idx: torch.Tensor, names) -> torch.Tensor:
+        """Photos ``names`` of samples ``idx`` side by side: (B, 3·len(names), H, W)."""
+        return torch.cat([self.photos[idx, self.shot(n)] for n in names], dim=1)
+
+    def flash_only_of(self, idx: torch.Tensor, name: str = "flash") -> torch.Tensor:
+        """The data set's flash-only image of shot ``name`` (ground truth): (B, 3, H, W)."""
+        if name not in self.flash_only_names:
+            raise InputError(
+                f"{self.root}: the data set has flash-only images {self.flash_only_names}, not "
+                f"'{name}'; regenerate it with a setup whose flash shots see the environment"
+            )
+        return self.flash_only[idx, self.flash_only_names.index(name)]
+
+    def far_flash_only(self, idx: torch.Tensor) -> torch.Tensor:
+        """The far flash-only image as inference forms it from the photos (no network predicts
+        it): ``max(max(far flash, 0) − max(far no-flash, 0), 0)``, (B, 3, H, W)."""
+        from .renders import far_flash_only
+
+        return far_flash_only(
+            self.photos[idx, self.shot("far_flash")], self.photos[idx, self.shot("far_noflash")]
+        )
 
     def lobes(self, idx: torch.Tensor) -> list[torch.Tensor]:
         """Ground-truth lobes of samples ``idx`` in photo units, (K_b, 7) each."""
@@ -75,6 +109,7 @@ def load_training_data(root: str | Path, max_samples: int = 0, progress=None) ->
     return TrainingData(
         Path(root),
         ds.shot_names,
+        ds.flash_only_names,
         stack("photos"),
         stack("flash_only"),
         stack("env_exemplars"),
@@ -85,4 +120,4 @@ def load_training_data(root: str | Path, max_samples: int = 0, progress=None) ->
     )
 
 
-__all__ = ["TrainingData", "load_training_data"]
+__all__ = ["CAPTURE_SHOTS", "TrainingData", "load_training_data"]

@@ -17,6 +17,10 @@
   record. The lobes are in the photos' units: the ground truth × exposure × white balance in
   stage 1 (:func:`photo_unit_lobes`), the SGs extracted from the (photo-unit) exemplars in stage 2
   and at inference.
+
+  Near-far (P = 4): the far pair is rendered from the far camera (``far_shot``) with its own ``k``,
+  fitted to the far flash-only image :func:`far_flash_only` = ``max(far flash − far no-flash, 0)``
+  of the photos (no network predicts it), in training as at inference.
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ from collections.abc import Callable, Sequence
 
 import torch
 
+from ..errors import InputError
 from ..geometry import far_shot, near_shot
 from ..nets import Maps
 from ..nets import torch_brdf as tb
@@ -52,6 +57,12 @@ def flash_scale(maps: Maps, flash_only: torch.Tensor, far: bool = False) -> torc
     num = (r * flash_only).sum(dim=(1, 2, 3))
     den = (r * r).sum(dim=(1, 2, 3)).clamp_min(1e-12)
     return (num / den).clamp_min(0.0)
+
+
+def far_flash_only(far_flash: torch.Tensor, far_noflash: torch.Tensor) -> torch.Tensor:
+    """The far flash-only image of a near-far capture from its photos (any matching shapes):
+    ``max(max(far flash, 0) − max(far no-flash, 0), 0)``, as :func:`.inference.predict` forms it."""
+    return (far_flash.clamp_min(0.0) - far_noflash.clamp_min(0.0)).clamp_min(0.0)
 
 
 def diffuse_flash_renderer(intensity: float) -> Callable:
@@ -97,8 +108,13 @@ def cascade_forward(
 ):
     """Run :class:`ebr_mitsuba.nets.Cascade` with the renderers of this module (training and
     inference call this one function). Shapes as in :meth:`Cascade.forward`; ``lobes`` per sample
-    in photo units."""
+    in photo units; ``photos`` (B, 3P, H, W) in the order of the module docstring;
+    ``far_flash_only`` (B, 3, H, W): :func:`far_flash_only` of the far pair, needed when P = 4."""
     c = cascade.config if not hasattr(cascade, "module") else cascade.module.config
+    if c.num_photos == 4 and c.use_refinement and far_flash_only is None:
+        raise InputError(
+            "cascade_forward: a near-far cascade needs far_flash_only (far flash − far no-flash)"
+        )
     return cascade(
         noflash,
         flash_only,
@@ -110,4 +126,11 @@ def cascade_forward(
     )
 
 
-__all__ = ["cascade_forward", "diffuse_flash_renderer", "flash_scale", "photo_renderer", "photo_unit_lobes"]
+__all__ = [
+    "cascade_forward",
+    "diffuse_flash_renderer",
+    "far_flash_only",
+    "flash_scale",
+    "photo_renderer",
+    "photo_unit_lobes",
+]

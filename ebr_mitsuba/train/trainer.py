@@ -7,6 +7,7 @@ phase           trains (others frozen)          inputs and loss
 ==============  ==============================  ===============================================
 ``lighting``    lighting net                    shots → exemplars + flash-only;
                                                 L1 of ``log(x + ε)`` against the data set's
+                                                exemplars and (near) flash-only image
 ``diffuse``     diffuse net (joint net without  stage 1: GT flash-only, exemplars selected
                 the cascade)                    under the GT env (cache); L1 normal + diffuse
                                                 (all four maps for the joint net)
@@ -22,6 +23,16 @@ phase           trains (others frozen)          inputs and loss
 **Dual loss** (``kind = "dualloss"``): one phase ``dualloss`` of ``[train].steps`` steps on a
 five-light data set: parameter L1 + ``render`` × the rendering loss (10 view/light pairs, 5 with a
 forced highlight, Dr.Jit renderer through ``dr.wrap``).
+
+**Near-far** (``[model].capture = "near-far"``, a ``near-far`` data set): the lighting net takes
+the four shots (flash, no-flash, far flash, far no-flash; :data:`.data.CAPTURE_SHOTS`) and still
+predicts the near exemplars and the near flash-only image; the diffuse and specular nets see the
+near images only, as at inference; the refinement gets the four photos and their four residuals,
+the far pair rendered from the far camera with its flash scale fitted to the far flash-only image
+``max(far flash − far no-flash, 0)`` of the photos (:func:`.renders.far_flash_only`) in every
+phase, stage 1 included, because inference has no other. The caches are the near ones (the
+selection compares with the near no-flash photo and flash-only image); stage 2 runs the lighting
+net on all four shots. A model refuses a data set of the other setup before any work.
 
 Every phase: Adam, learning rate decaying from its initial value to ``lr_final`` on a cosine;
 batches drawn from a seeded permutation per epoch (``torch.Generator``, state checkpointed);
@@ -53,7 +64,7 @@ from . import cache, ddp
 from .bundle import DataFacts, build_bundle, net_configs
 from .checkpoint import load_checkpoint, save_checkpoint
 from .config import PHASES, TrainConfig
-from .data import load_training_data
+from .data import CAPTURE_SHOTS, load_training_data
 from .inference import pick_device
 from .renders import cascade_forward
 
@@ -113,21 +124,28 @@ class Trainer:
 
     # -- setup --------------------------------------------------------------------------------
 
+    @property
+    def capture(self) -> str:
+        """``near`` or ``near-far`` (ebrenv; the ``[model].capture`` of the config)."""
+        return self.config.model.get("capture", "near")
+
     def _check_setup(self) -> None:
-        if self.config.kind == "ebrenv" and self.config.model.get("capture", "near") != "near":
-            raise InputError(
-                f"{self.config.source}: [model].capture = 'near-far': training near-far models is "
-                f"not implemented yet; train a 'near' model"
+        have, data = self.facts.setup, self.config.data.train
+        if self.config.kind == "dualloss":
+            if have != "five-light":
+                raise InputError(
+                    f"{data}: a '{have}' data set; a dualloss config needs a 'five-light' one "
+                    f"(ebr generate with [capture] setup = 'five-light')"
+                )
+            return
+        want = self.capture
+        if have != want:
+            fix = (
+                f"set [model].capture = '{have}' in {self.config.source} or " if have in CAPTURE_SHOTS else ""
             )
-        want = (
-            "five-light"
-            if self.config.kind == "dualloss"
-            else ("near-far" if self.config.model.get("capture", "near") == "near-far" else "near")
-        )
-        if self.facts.setup != want:
             raise InputError(
-                f"{self.config.data.train}: a '{self.facts.setup}' data set; a {self.config.kind} "
-                f"config with this capture needs a '{want}' one"
+                f"{data}: a '{have}' data set; {self.config.source} has [model].capture = '{want}' "
+                f"and needs a '{want}' one ({fix}generate one with [capture] setup = '{want}')"
             )
 
     def _prepare_out(self) -> None:
@@ -368,13 +386,9 @@ class Trainer:
     def _loss(self, name: str, model, idx: torch.Tensor, gen: torch.Generator):
         d, dev = self.data, self.device
         if name == "lighting":
-            shots = ["flash", "noflash"] + (
-                ["far_flash", "far_noflash"] if self.bundle.lighting.config.num_shots == 4 else []
-            )
-            x = torch.cat([d.photos[idx, d.shot(s)] for s in shots], dim=1).to(dev)
-            out = model(x)
+            out = model(d.shots(idx, CAPTURE_SHOTS[self.capture]).to(dev))
             ex = (log_input(out.exemplars) - log_input(d.env_exemplars[idx].to(dev))).abs().mean()
-            fo = (log_input(out.flash_only) - log_input(d.flash_only[idx, 0].to(dev))).abs().mean()
+            fo = (log_input(out.flash_only) - log_input(d.flash_only_of(idx).to(dev))).abs().mean()
             return ex + fo, {"exemplars": ex, "flash_only": fo}
         target = self._target(idx)
         if name == "dualloss":
@@ -424,16 +438,16 @@ class Trainer:
 
     def _cascade(self, name: str, model, idx: torch.Tensor):
         d, dev = self.data, self.device
-        fl, nf = d.shot("flash"), d.shot("noflash")
-        noflash = d.photos[idx, nf].to(dev)
-        photos = torch.cat([d.photos[idx, fl], noflash.cpu()], dim=1).to(dev)
+        noflash = d.photos[idx, d.shot("noflash")].to(dev)
+        photos = d.shots(idx, CAPTURE_SHOTS[self.capture]).to(dev)
+        far_fo = d.far_flash_only(idx).to(dev) if self.capture == "near-far" else None
         if name == "finetune":
             src = self.stage2
             flash_only = src["flash_only"][idx].to(dev)
             lobes = [src["sg"][int(i)].to(dev) for i in idx]
         else:
             src = getattr(self, "stage1", None)
-            flash_only = d.flash_only[idx, 0].to(dev)
+            flash_only = d.flash_only_of(idx).to(dev)
             lobes = [lb.to(dev) for lb in d.lobes(idx)]
         env_ex = src["env_images"][idx].to(dev) if src is not None and "env_images" in src else None
         point_ex = src["point_images"][idx].to(dev) if src is not None and "point_images" in src else None
@@ -444,7 +458,15 @@ class Trainer:
         )
         with ctx:
             return cascade_forward(
-                model, noflash, flash_only, env_ex, point_ex, photos, lobes, self.facts.flash_intensity
+                model,
+                noflash,
+                flash_only,
+                env_ex,
+                point_ex,
+                photos,
+                lobes,
+                self.facts.flash_intensity,
+                far_fo,
             )
 
 
