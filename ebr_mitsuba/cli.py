@@ -40,14 +40,21 @@ def build_parser() -> argparse.ArgumentParser:
         prog="ebr",
         description="ebr-mitsuba: inverse rendering of near-planar SVBRDFs under unknown environment light.",
     )
-    parser.add_argument("--variant", default=None,
-                        help="Mitsuba variant (default: $EBR_VARIANT or llvm_ad_rgb; cuda_ad_rgb where available)")
+    parser.add_argument(
+        "--variant",
+        default=None,
+        help="Mitsuba variant (default: $EBR_VARIANT or llvm_ad_rgb; cuda_ad_rgb where available)",
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMANDS:
         modname = f"{__package__}.commands.{name.replace('-', '_')}"
         module = importlib.import_module(modname)
-        p = sub.add_parser(module.NAME, help=module.HELP, description=module.__doc__,
-                           formatter_class=argparse.RawDescriptionHelpFormatter)
+        p = sub.add_parser(
+            module.NAME,
+            help=module.HELP,
+            description=module.__doc__,
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
         module.add_arguments(p)
         p.set_defaults(_run=module.run)
     return parser
@@ -77,8 +84,11 @@ def main(argv: list[str] | None = None) -> int:
         import traceback
 
         log = traceback.format_exc()
-        print(f"ebr {args.command}: internal error: {type(exc).__name__}: {exc} "
-              f"(set EBR_DEBUG=1 for the traceback)", file=sys.stderr)
+        print(
+            f"ebr {args.command}: internal error: {type(exc).__name__}: {exc} "
+            f"(set EBR_DEBUG=1 for the traceback)",
+            file=sys.stderr,
+        )
         import os
 
         if os.environ.get("EBR_DEBUG"):

@@ -70,11 +70,13 @@ def plugins_page() -> str:
     from ebr_mitsuba.plugins import sgenvmap, svbrdf
 
     out = [HEADER, "# Mitsuba plugins\n\n",
-           "Registered when `ebr_mitsuba` is imported after a variant is set (`ebr_mitsuba.ensure_variant()`); "
+           "Registered when `ebr_mitsuba` is imported after a variant is set "
+           "(`ebr_mitsuba.ensure_variant()`); "
            "an XML scene using them loads through `ebr render` or `ebr_mitsuba.load_scene()`.\n\n"]
     for module, cls_name in ((sgenvmap, "SGEnvMap"), (svbrdf, "SVBRDFBSDF")):
         cls = getattr(module, cls_name)
-        out.append(f"## `{module.__name__.rsplit('.', 1)[1]}` ({cls_name})\n\n{rst_to_markdown(inspect.cleandoc(cls.__doc__))}\n\n")
+        body = rst_to_markdown(inspect.cleandoc(cls.__doc__))
+        out.append(f"## `{module.__name__.rsplit('.', 1)[1]}` ({cls_name})\n\n{body}\n\n")
     return "".join(out)
 
 

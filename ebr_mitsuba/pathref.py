@@ -50,7 +50,9 @@ def trace(scene, origins: np.ndarray, directions: np.ndarray, spp: int = 256, se
         n = p * spp
         idx = dr.arange(mi.UInt32, n) // spp
         o = [dr.gather(mi.Float, mi.Float(origins[start:stop, k].astype(np.float32)), idx) for k in range(3)]
-        d = [dr.gather(mi.Float, mi.Float(directions[start:stop, k].astype(np.float32)), idx) for k in range(3)]
+        d = [
+            dr.gather(mi.Float, mi.Float(directions[start:stop, k].astype(np.float32)), idx) for k in range(3)
+        ]
         ray = mi.Ray3f(mi.Point3f(*o), mi.Vector3f(*d))
         sampler = mi.load_dict({"type": "independent"})
         sampler.seed(seed * 7919 + b, n)

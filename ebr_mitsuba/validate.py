@@ -28,12 +28,12 @@ from __future__ import annotations
 
 import math
 import time
-import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
+import tomllib
 
 from .errors import ConfigError, InputError
 
@@ -83,7 +83,9 @@ def load_cases(path: Path | None = None) -> list[Case]:
     for i, entry in enumerate(data.get("case", [])):
         unknown = set(entry) - _CASE_KEYS
         if unknown:
-            raise ConfigError(f"{path}: case {i}: unknown key(s) {sorted(unknown)}; allowed: {sorted(_CASE_KEYS)}")
+            raise ConfigError(
+                f"{path}: case {i}: unknown key(s) {sorted(unknown)}; allowed: {sorted(_CASE_KEYS)}"
+            )
         if "name" not in entry or "scene" not in entry:
             raise ConfigError(f"{path}: case {i} needs 'name' and 'scene'")
         checks = tuple(entry.get("checks", ("fast-sg", "fast-quadrature")))
@@ -182,8 +184,9 @@ def fast_radiance(scene: PlaneScene, pts: np.ndarray, cams: np.ndarray, mode: st
         return kind(a[:, 0].copy(), a[:, 1].copy(), a[:, 2].copy())
 
     n = perturbed_normal(vec(scene.normal))
+    rough = mi.Float(np.full(count, scene.roughness, np.float32))
     sp = ShadingPoints(n, vec(v), vec(scene.diffuse, mi.Color3f), vec(scene.specular, mi.Color3f),
-                       mi.Float(np.full(count, scene.roughness, np.float32)), dr.arange(mi.UInt32, count), count)
+                       rough, dr.arange(mi.UInt32, count), count)
     total = dr.zeros(mi.Color3f, count)
     if scene.axis.shape[0] > 0:
         lobes = DrLobes.from_numpy(scene.axis, scene.sharpness, scene.amplitude)
@@ -209,16 +212,18 @@ def _builtin_bsdf(scene: PlaneScene) -> dict:
     r = min(max(scene.roughness, ROUGHNESS_MIN), 1.0)
     if float(scene.diffuse.max()) > 0.5:
         raise InputError("builtin-bsdf check needs diffuse <= 0.5 (the built-in 'diffuse' takes 2·d <= 1)")
+    normal_texels = np.broadcast_to(((scene.normal + 1) / 2).astype(np.float32), (2, 2, 3)).copy()
     return {
         "type": "normalmap",
         "flip_invalid_normals": False,
         "use_shadowing_function": False,
         "normalmap": {"type": "bitmap", "raw": True, "filter_type": "nearest",
-                      "data": mi.TensorXf(np.broadcast_to(((scene.normal + 1) / 2).astype(np.float32), (2, 2, 3)).copy())},
+                      "data": mi.TensorXf(normal_texels)},
         "bsdf": {
             "type": "blendbsdf",
             "weight": 0.5,
-            "bsdf_0": {"type": "diffuse", "reflectance": {"type": "rgb", "value": (2 * scene.diffuse).tolist()}},
+            "bsdf_0": {"type": "diffuse",
+                       "reflectance": {"type": "rgb", "value": (2 * scene.diffuse).tolist()}},
             "bsdf_1": {"type": "roughconductor", "distribution": "ggx", "alpha": r * r, "material": "none",
                        "specular_reflectance": {"type": "rgb", "value": (2 * scene.specular).tolist()}},
         },

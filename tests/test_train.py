@@ -239,7 +239,20 @@ def test_cli_train_and_wrong_setup(tiny, tiny5, tmp_path, capsys):
     assert {t.dtype for net in payload["model"].values() for t in net.values() if t.is_floating_point()} == {
         torch.float16
     }
-    assert main(["train", str(cfg), "--out", str(tmp_path / "o"), "--resume", "--export", str(tmp_path / "no" / "x.pt")]) == 2
+    assert (
+        main(
+            [
+                "train",
+                str(cfg),
+                "--out",
+                str(tmp_path / "o"),
+                "--resume",
+                "--export",
+                str(tmp_path / "no" / "x.pt"),
+            ]
+        )
+        == 2
+    )
     assert "its folder does not exist" in capsys.readouterr().err
     doc["data"]["train"] = str(tiny5)
     cfg.write_text(_toml(doc))
@@ -379,7 +392,10 @@ def test_cli_eval_json(tiny, tiny_model, capsys):
     assert again["per_map_rmse"] == pytest.approx(out["per_map_rmse"], rel=1e-6)
     assert again["rerender_rmse"] == pytest.approx(out["rerender_rmse"], rel=1e-6)
     for bad in ("again", "again=", f"mean_maps={tiny_model}"):
-        assert main(["eval", "--checkpoint", str(tiny_model), "--data", str(tiny), "--baseline-checkpoint", bad]) == 2
+        assert (
+            main(["eval", "--checkpoint", str(tiny_model), "--data", str(tiny), "--baseline-checkpoint", bad])
+            == 2
+        )
         assert "--baseline-checkpoint" in capsys.readouterr().err
     assert main(["eval", "--checkpoint", str(tiny_model), "--data", str(tiny), "--limit", "-1"]) == 2
     assert "--limit -1" in capsys.readouterr().err
@@ -406,11 +422,18 @@ def test_bench_models_page(tiny, tiny_model, tmp_path, monkeypatch):
     assert models.unavailable() is None
     page = models.run(tmp_path / "docs", quick=True, log=lambda msg: None)
     text = page.read_text()
-    for row in ("| shipped model |", "| (a) training-set mean maps |", "| (b) without exemplars |",
-                "| without cascade |", "| without adaptive selection"):
+    for row in (
+        "| shipped model |",
+        "| (a) training-set mean maps |",
+        "| (b) without exemplars |",
+        "| without cascade |",
+        "| without adaptive selection",
+    ):
         assert row in text
     assert "quick run" in text and "| lighting | 2 |" in text
-    assert (tmp_path / "docs" / "models_loss.png").is_file() and (tmp_path / "docs" / "models_eval.png").is_file()
+    assert (tmp_path / "docs" / "models_loss.png").is_file() and (
+        tmp_path / "docs" / "models_eval.png"
+    ).is_file()
     shutil.rmtree(runs / "nocas")
     with pytest.raises(InputError, match="nocas"):
         models.run(tmp_path / "docs2", quick=True, log=lambda msg: None)

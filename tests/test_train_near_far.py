@@ -190,7 +190,9 @@ def test_eval_scores_a_near_far_model(tiny_nf, run_nf, capsys):
     """``ebr eval`` passes the far pair to a near-far model."""
     from ebr_mitsuba.cli import main
 
-    code = main(["eval", "--checkpoint", str(run_nf / "model.pt"), "--data", str(tiny_nf), "--limit", "1", "--json"])
+    code = main(
+        ["eval", "--checkpoint", str(run_nf / "model.pt"), "--data", str(tiny_nf), "--limit", "1", "--json"]
+    )
     assert code == 0
     out = json.loads(capsys.readouterr().out)
     assert out["n"] == 1 and np.isfinite(out["per_map_rmse"]["mean"])

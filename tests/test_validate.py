@@ -15,7 +15,8 @@ GLOSSY = """
 [[case]]
 name = "glossy"
 scene = "{scene}"
-params = {{ diffuse = "0.2, 0.2, 0.2", specular = "0.5, 0.45, 0.4", roughness = "0.25", axis = "0 0 1, -0.5 0.1 0.86", sharpness = "2, 60", amplitude = "0.5 0.5 0.6, 8 7 6" }}
+params = {{ diffuse = "0.2, 0.2, 0.2", specular = "0.5, 0.45, 0.4", roughness = "0.25", \
+axis = "0 0 1, -0.5 0.1 0.86", sharpness = "2, 60", amplitude = "0.5 0.5 0.6, 8 7 6" }}
 checks = [{checks}]
 view_deg = 30
 view_azimuth_deg = 0

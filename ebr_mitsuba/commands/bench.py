@@ -50,10 +50,16 @@ def available() -> list[str]:
 
 
 def add_arguments(p) -> None:
-    p.add_argument("which", nargs="?", default="all", choices=(*BENCHMARKS, "all"),
-                   help="benchmark to run (default: all)")
-    p.add_argument("--out", type=Path, default=None,
-                   help="output folder (default docs/bench; docs for 'models')")
+    p.add_argument(
+        "which",
+        nargs="?",
+        default="all",
+        choices=(*BENCHMARKS, "all"),
+        help="benchmark to run (default: all)",
+    )
+    p.add_argument(
+        "--out", type=Path, default=None, help="output folder (default docs/bench; docs for 'models')"
+    )
     p.add_argument("--quick", action="store_true", help="reduced sizes, for smoke tests")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
 
@@ -61,7 +67,9 @@ def add_arguments(p) -> None:
 def run(args) -> int:
     names = available() if args.which == "all" else [args.which]
     if args.which != "all" and args.which not in available():
-        raise InputError(f"benchmark '{args.which}' is not in this version; available: {', '.join(available())}")
+        raise InputError(
+            f"benchmark '{args.which}' is not in this version; available: {', '.join(available())}"
+        )
     written, seconds = {}, {}
     for name in names:
         module = importlib.import_module(_module_name(name))

@@ -182,7 +182,10 @@ def demo_strip(out: Path, path: Path, true_env=None) -> Path:
                 ("estimated normal", read_png(est / "maps/normal.png")),
                 ("estimated roughness", read_png(est / "maps/roughness.png")),
                 ("estimated specular", read_png(est / "maps/specular.png")),
-                ("estimated lighting", read_png(est / "env_sphere.png") if (est / "env_sphere.png").is_file() else None),
+                (
+                    "estimated lighting",
+                    read_png(est / "env_sphere.png") if (est / "env_sphere.png").is_file() else None,
+                ),
             ],
         ]
     fig, axes = plt.subplots(2, 7, figsize=(14, 4.3))

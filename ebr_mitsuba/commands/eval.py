@@ -86,9 +86,13 @@ def run(args) -> int:
     for spec in args.baseline_checkpoint:
         name, sep, path = spec.partition("=")
         if not sep or not name or not path:
-            raise InputError(f"--baseline-checkpoint {spec!r}: write NAME=CHECKPOINT, e.g. no-exemplars=runs/noex/model.pt")
+            raise InputError(
+                f"--baseline-checkpoint {spec!r}: write NAME=CHECKPOINT, e.g. no-exemplars=runs/noex/model.pt"
+            )
         if name == "mean_maps" or name in (o[0] for o in others):
-            raise InputError(f"--baseline-checkpoint {spec!r}: the name {name!r} is used twice; give each its own")
+            raise InputError(
+                f"--baseline-checkpoint {spec!r}: the name {name!r} is used twice; give each its own"
+            )
         others.append((name, path))
     bundle = load_model(args.checkpoint, expect_kind=None)
     loaded = [(name, load_model(path, expect_kind=bundle.kind)) for name, path in others]
@@ -117,7 +121,9 @@ def run(args) -> int:
         result.setdefault("baselines", {})["mean_maps"] = base
         say(_line("mean maps", base))
     for name, other in loaded:
-        base = evaluate(model_predictor(other), args.data, limit=args.limit, seed=args.seed, progress=progress)
+        base = evaluate(
+            model_predictor(other), args.data, limit=args.limit, seed=args.seed, progress=progress
+        )
         base["checkpoint"] = str(dict(others)[name])
         base["groups"] = group_means(base["per_sample"], material_group)
         result.setdefault("baselines", {})[name] = base

@@ -40,22 +40,27 @@ def add_arguments(parser) -> None:
     parser.add_argument("config", help="training config (TOML), e.g. configs/train_small.toml")
     parser.add_argument("--out", default=None, help="output directory [runs/<config name>]")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out from last.pt")
-    parser.add_argument("--export", default=None, metavar="FILE",
-                        help="also write a deployable float16 copy of the final model to FILE")
+    parser.add_argument(
+        "--export",
+        default=None,
+        metavar="FILE",
+        help="also write a deployable float16 copy of the final model to FILE",
+    )
     parser.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
 
 
 def run(args) -> int:
+    from ..errors import InputError
+    from ..train.checkpoint import export_model
     from ..train.config import load_config
     from ..train.ddp import shutdown
     from ..train.trainer import Trainer
 
-    from ..errors import InputError
-    from ..train.checkpoint import export_model
-
     config = load_config(args.config)
     if args.export and not Path(args.export).resolve().parent.is_dir():
-        raise InputError(f"--export {args.export}: its folder does not exist; create it or choose another path")
+        raise InputError(
+            f"--export {args.export}: its folder does not exist; create it or choose another path"
+        )
     out = Path(args.out) if args.out else Path("runs") / Path(args.config).stem
     trainer = Trainer(config, out, resume=args.resume, log=say, progress=progress)
     try:

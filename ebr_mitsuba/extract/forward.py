@@ -12,17 +12,16 @@ Pixel indices are flat over the exemplar stack: ``index = i·H·W + row·W + col
 Every per-call value (camera, indices, quadrature seed) is data or opaque: one kernel serves all
 iterations.
 
-``mode="sg"`` runs :func:`flat_sg_environment`, the flat-normal branch of
-:func:`ebr_mitsuba.render.env_sg.sg_environment` with the same math (its per-pair
+``mode="sg"`` runs :func:`flat_sg_environment`: the flat-normal branch of
+:func:`ebr_mitsuba.render.env_sg.sg_environment`, same math and same values (its per-pair
 :func:`~ebr_mitsuba.render.env_sg.specular_sg_pairs` and per-lobe
-:func:`~ebr_mitsuba.sg.sg_irradiance`) and one difference that only matters in reverse mode: the
-(pixel, lobe) pairs may gather from a separately built copy of the lobe arrays. Dr.Jit's
-reverse-mode gather is a scatter-add into the gradient of its source; when the per-lobe
-irradiance has already put a (lazy) gradient there, every one of the seven lobe components forces
-that gradient's evaluation first, which splits the reverse pass into five kernels over all pairs,
-each recomputing the forward pass (measured: 5 pair kernels, 36 JIT kernels per Adam step). With
-the copy, each gathered array receives gradient from its gathers only and the whole reverse pass
-over the pairs is one kernel.
+:func:`~ebr_mitsuba.sg.sg_irradiance`), arranged for the reverse pass of the Adam loop: the
+gathered lobe and point arrays are evaluated together before the pair kernel, and the lobe
+gathers use ``ReduceMode.Local`` (pairs are lobe-major, so a packet of lanes shares its lobe and
+the reverse-mode scatter-add pre-reduces it to one atomic). With the renderer's version (lazy
+gather sources, expanded scatter targets) each Adam step ran the reverse pass as five kernels over
+all pairs, each recomputing the forward pass, 70 kernel launches in all; with this one, one
+reverse kernel and 40 launches (either change alone keeps the reverse pass in one kernel).
 """
 
 from __future__ import annotations
@@ -33,13 +32,13 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..geometry import Shot
 from ..brdf import INV_PI
+from ..geometry import Shot
 from ..render.env_sg import specular_sg_pairs, unit_axes
 from ..render.fast import EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR, environment
 from ..render.inputs import DrLobes, RenderOptions
-from ..sg import sg_irradiance
 from ..render.points import ShadingPoints, grid_positions, opaque_point, view_vectors
+from ..sg import sg_irradiance
 
 
 @dataclass
@@ -100,21 +99,17 @@ class ExemplarGeometry:
         return self.render_with(lobes, index, options, self._view, self._roughness)
 
     def render_with(
-        self,
-        lobes: DrLobes,
-        index: mi.UInt32,
-        options: RenderOptions,
-        view: mi.Vector3f,
-        roughness: mi.Float,
-        diffuse_lobes: DrLobes | None = None,
+        self, lobes: DrLobes, index: mi.UInt32, options: RenderOptions, view: mi.Vector3f, roughness: mi.Float
     ) -> mi.Color3f:
-        """:meth:`render` with explicit view and roughness arrays; ``diffuse_lobes`` (``sg`` mode)
-        is the copy of ``lobes`` for the irradiance term (:func:`flat_sg_environment`)."""
+        """:meth:`render` with explicit view and roughness arrays."""
+        return self.render_points(self.points(index, view, roughness), lobes, options)
+
+    def render_points(self, points: ShadingPoints, lobes: DrLobes, options: RenderOptions) -> mi.Color3f:
+        """:meth:`render` at shading points from :meth:`points`."""
         if lobes.num_lobes == 0:
-            return dr.zeros(mi.Color3f, dr.width(index))
-        points = self.points(index, view, roughness)
+            return dr.zeros(mi.Color3f, points.count)
         if options.mode == "sg":
-            return flat_sg_environment(points, lobes, options, diffuse_lobes)
+            return flat_sg_environment(points, lobes, options)
         return environment(points, lobes, options)
 
     def all_indices(self) -> mi.UInt32:
@@ -139,35 +134,26 @@ class ExemplarGeometry:
         return np.stack([-v[:, 0], -v[:, 1], v[:, 2]], axis=-1)
 
 
-def flat_sg_environment(
-    points: ShadingPoints, lobes: DrLobes, options: RenderOptions, diffuse_lobes: DrLobes | None = None
-) -> mi.Color3f:
+def flat_sg_environment(points: ShadingPoints, lobes: DrLobes, options: RenderOptions) -> mi.Color3f:
     """Closed-form environment radiance at flat-normal ``points`` (``points.count`` lanes): the
-    value of :func:`ebr_mitsuba.render.env_sg.sg_environment`. The specular pairs gather from
-    ``lobes``, the per-lobe irradiance reads ``diffuse_lobes`` (default ``lobes``): give a copy
-    built separately from the same parameters to get a single-kernel reverse pass (module
-    docstring)."""
+    value of :func:`ebr_mitsuba.render.env_sg.sg_environment`, with the evaluation order and
+    gather mode of the module docstring."""
     if not points.flat_normal:
         raise ValueError("flat_sg_environment: the points must have the flat normal +z")
     count = points.count
     k_lobes = lobes.num_lobes
     if k_lobes == 0:
         return dr.zeros(mi.Color3f, count)
-    diffuse_lobes = lobes if diffuse_lobes is None else diffuse_lobes
     axes = unit_axes(lobes)
     z = mi.Vector3f(0.0, 0.0, 1.0)
-    per_lobe = sg_irradiance(
-        unit_axes(diffuse_lobes), diffuse_lobes.sharpness, diffuse_lobes.amplitude, z, options.irradiance_nodes
-    )
+    per_lobe = sg_irradiance(axes, lobes.sharpness, lobes.amplitude, z, options.irradiance_nodes)
     # the gathered arrays, evaluated together: one kernel per width instead of one per component
     dr.eval(axes, lobes.sharpness, lobes.amplitude, per_lobe, points.v, points.roughness)
     irradiance = dr.sum(per_lobe, axis=-1)  # over lobes (axis 0 would sum the RGB channels)
     idx = dr.arange(mi.UInt32, k_lobes * count)
     k = idx // count
     q = idx - k * count
-    # lobe-major pairs: a packet of lanes shares its lobe, so the reverse-mode scatter-add of
-    # these gathers pre-reduces each packet (ReduceMode.Local) instead of expanding the target
-    mode = dr.ReduceMode.Local
+    mode = dr.ReduceMode.Local  # lobe-major pairs: a packet of lanes shares its lobe
     axis = dr.gather(mi.Vector3f, axes, k, mode=mode)
     lam = dr.gather(mi.Float, lobes.sharpness, k, mode=mode)
     amp = dr.gather(mi.Color3f, lobes.amplitude, k, mode=mode)

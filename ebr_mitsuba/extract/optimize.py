@@ -11,10 +11,26 @@ model is *below* them (a clipped pixel is a lower bound). Parameters are unconst
 as a free 3-vector (normalised by the renderer), ``log λ`` (clamped to [log 0.5, log 2·10⁴]) and
 ``log μ`` (so μ > 0 always), learning rates decaying along a cosine to 10 % over each call of
 :func:`run_adam` (one stage between densification rounds). The pixel indices are data and the
-quadrature seed is opaque, so one
-set of kernels serves every iteration, and the whole step (forward, backward, Adam update) is a
-:func:`drjit.freeze` function: traced once per lobe count and replayed after that. The loss is
-read back every ``READBACK`` iterations only.
+quadrature seed is opaque, so one set of kernels serves every iteration, and the whole step
+(forward, backward, Adam update) is a :func:`drjit.freeze` function: traced once per call of
+:func:`run_adam` and replayed after that. The loss is read back every ``READBACK`` iterations only.
+
+Speed (measured with 64 lobes, 4 exemplars, 32² pixels each per iteration: 262,144 (pixel, lobe)
+pairs): an iteration is two kernels over the pairs (forward; reverse, which recomputes the
+forward values) and about 40 launches in all, down from 6 pair kernels and 77 launches:
+
+* the reverse pass runs in two stages: the loss's gradient w.r.t. the environment term is
+  evaluated first (one kernel, correction included), then propagated to the lobes; together with
+  :func:`ebr_mitsuba.extract.forward.flat_sg_environment` this keeps it in one pair kernel;
+* the sampled pixels' data (target, correction, saturation: one :data:`ROW`-float row per pixel,
+  one cache line per sample instead of one per channel and array), log-targets, view vectors and
+  roughness are gathered once per iteration in one kernel, not re-gathered in every kernel;
+* pixel indices are drawn with the same generator calls as before but uploaded every
+  :data:`INDEX_BLOCK` iterations: each per-iteration numpy array mapped into Dr.Jit queued a host
+  callback to release it, which waited for the GIL (up to a few ms per iteration);
+* numpy inputs are copied to 64-byte-aligned memory (:func:`aligned`): Dr.Jit compiles kernels
+  for the alignment of mapped numpy memory, so the first traced step's kernels differed between
+  calls and missed the kernel cache (0.5–1 s of compilation per call).
 """
 
 from __future__ import annotations
@@ -31,6 +47,8 @@ from ..render.inputs import DrLobes, RenderOptions
 from .forward import ExemplarGeometry, stratified_indices
 
 READBACK = 25
+ROW = 8  # floats per pixel in Problem's per-pixel rows
+INDEX_BLOCK = 50  # iterations whose pixel indices are drawn and uploaded at once
 LOG_LAMBDA_MIN = math.log(0.5)
 LOG_LAMBDA_MAX = math.log(2.0e4)
 
@@ -41,7 +59,8 @@ class Problem:
 
     ``targets`` (N·H·W, 3) float32 flat (normalised radiance), ``saturated`` (N·H·W,) bool (clipped
     pixels), ``weights``/``eps``/``rms`` (N,) per exemplar, ``correction`` (N·H·W, 3) added to
-    (``offset``) or multiplied into (``ratio``) the closed-form model in ``corrected`` mode.
+    (``offset``) or multiplied into (``ratio``) the closed-form model in ``corrected`` mode. On the
+    Dr.Jit side the per-pixel arrays are one row of :data:`ROW` floats per pixel (:meth:`arrays`).
     """
 
     geometry: ExemplarGeometry
@@ -53,31 +72,33 @@ class Problem:
     correction: np.ndarray
 
     def __post_init__(self):
-        t = self.targets.astype(np.float32)
-        self.dr_targets = mi.Color3f(t[:, 0], t[:, 1], t[:, 2])
-        self.dr_saturated = mi.Bool(self.saturated)
-        self.dr_weights = mi.Float(self.weights.astype(np.float32))
-        self.dr_eps = mi.Float(self.eps.astype(np.float32))
-        self.dr_rms = mi.Float(self.rms.astype(np.float32))
+        self.dr_weights = mi.Float(aligned(self.weights.astype(np.float32)))
+        self.dr_eps = mi.Float(aligned(self.eps.astype(np.float32)))
+        self.dr_rms = mi.Float(aligned(self.rms.astype(np.float32)))
         self.set_correction(self.correction)
 
     def arrays(self) -> dict:
-        """The Dr.Jit arrays of the loss and the forward model, by name."""
+        """The Dr.Jit arrays of the loss and the forward model, by name: ``rows`` (the per-pixel
+        data, :data:`ROW` floats per pixel), ``weights``/``eps``/``rms``, ``view``, ``roughness``."""
         return {
-            "targets": self.dr_targets,
-            "saturated": self.dr_saturated,
+            "rows": self.dr_rows,
             "weights": self.dr_weights,
             "eps": self.dr_eps,
             "rms": self.dr_rms,
-            "correction": self.dr_correction,
             "view": self.geometry.view,
             "roughness": self.geometry.roughness_array,
         }
 
     def set_correction(self, correction: np.ndarray) -> None:
+        """Replace ``correction`` (N·H·W, 3)."""
         self.correction = np.asarray(correction, np.float32)
-        c = self.correction
-        self.dr_correction = mi.Color3f(c[:, 0], c[:, 1], c[:, 2])
+        # one row of ROW floats per pixel (target RGB, correction RGB, saturated as 0/1, padding),
+        # 32 bytes: a sampled pixel costs one cache line, not one per channel and array
+        rows = np.zeros((len(self.targets), ROW), np.float32)
+        rows[:, 0:3] = self.targets
+        rows[:, 3:6] = self.correction
+        rows[:, 6] = self.saturated
+        self.dr_rows = mi.Float(aligned(rows.reshape(-1)))
 
     def row_weights(self, index: np.ndarray) -> np.ndarray:
         """Per-pixel least-squares weight λ_i/‖y_i‖ (for the amplitude solve), (P,)."""
@@ -85,33 +106,56 @@ class Problem:
         return (self.weights / np.maximum(self.rms, 1e-30))[img]
 
 
+@dataclass
+class Pixels:
+    """One iteration's sampled pixels and their loss data, ``P`` lanes each: flat ``index``,
+    exemplar ``img``, target ``y`` (Color3f), ``log_y`` = log(y + ε_img), ``eps`` = ε_img,
+    ``saturated`` and the model ``correction`` (Color3f)."""
+
+    index: mi.UInt32
+    img: mi.UInt32
+    y: mi.Color3f
+    log_y: mi.Color3f
+    eps: mi.Float
+    saturated: mi.Bool
+    correction: mi.Color3f
+
+    @staticmethod
+    def gather(problem: Problem, index: mi.UInt32, arrays: dict | None = None) -> Pixels:
+        """The loss data at ``index``; ``arrays`` overrides the problem's Dr.Jit arrays."""
+        arr = arrays or problem.arrays()
+        img = index // problem.geometry.pixels
+        base = index * ROW
+        rows = arr["rows"]
+        y = mi.Color3f(*(dr.gather(mi.Float, rows, base + c) for c in range(3)))
+        correction = mi.Color3f(*(dr.gather(mi.Float, rows, base + c) for c in range(3, 6)))
+        saturated = dr.gather(mi.Float, rows, base + 6) > 0.5
+        eps = dr.gather(mi.Float, arr["eps"], img)
+        return Pixels(index, img, y, dr.log(y + eps), eps, saturated, correction)
+
+
 def loss_terms(
     problem: Problem,
     yhat: mi.Color3f,
-    index: mi.UInt32,
+    pixels: Pixels,
     per_image: int,
     log_weight: float,
     arrays: dict | None = None,
 ):
-    """The loss (module docstring) of model values ``yhat`` at ``index``; ``arrays`` overrides
+    """The loss (module docstring) of model values ``yhat`` at ``pixels``; ``arrays`` overrides
     the problem's Dr.Jit arrays (the frozen step passes them explicitly)."""
     arr = arrays or problem.arrays()
-    n_pix = problem.geometry.pixels
-    img = index // n_pix
-    y = dr.gather(mi.Color3f, arr["targets"], index)
-    sat = dr.gather(mi.Bool, arr["saturated"], index)
-    eps = dr.gather(mi.Float, arr["eps"], img)
-    diff = yhat - y
-    above = sat & (diff > 0.0)
+    diff = yhat - pixels.y
+    above = pixels.saturated & (diff > 0.0)
     diff = dr.select(above, 0.0, diff)
-    logd = dr.log(dr.maximum(yhat, 0.0) + eps) - dr.log(y + eps)
+    logd = dr.log(dr.maximum(yhat, 0.0) + pixels.eps) - pixels.log_y
     logd = dr.select(above, 0.0, logd)
     n = problem.geometry.count
     lin = dr.zeros(mi.Float, n)
     lg = dr.zeros(mi.Float, n)
     # the indices are sorted by exemplar: a packet of lanes shares its target (ReduceMode.Local)
-    dr.scatter_reduce(dr.ReduceOp.Add, lin, dr.squared_norm(diff), img, mode=dr.ReduceMode.Local)
-    dr.scatter_reduce(dr.ReduceOp.Add, lg, dr.squared_norm(logd), img, mode=dr.ReduceMode.Local)
+    dr.scatter_reduce(dr.ReduceOp.Add, lin, dr.squared_norm(diff), pixels.img, mode=dr.ReduceMode.Local)
+    dr.scatter_reduce(dr.ReduceOp.Add, lg, dr.squared_norm(logd), pixels.img, mode=dr.ReduceMode.Local)
     norm = arr["rms"] * math.sqrt(per_image)
     terms = dr.safe_sqrt(lin) / dr.maximum(norm, 1e-30) + log_weight * dr.safe_sqrt(lg / (3.0 * per_image))
     return dr.sum(arr["weights"] * terms)
@@ -171,20 +215,33 @@ def _make_step(
     an argument (parameters, moments, step count, pixel indices)."""
     geom = problem.geometry
 
-    def step(params, m1, m2, t, lrs, index, arrays):
+    count = geom.count * per_image
+
+    def step(params, m1, m2, t, lrs, index_block, offset, arrays):
+        index = dr.gather(mi.UInt32, index_block, dr.arange(mi.UInt32, count) + offset)
+        pixels = Pixels.gather(problem, index, arrays)
+        points = geom.points(index, arrays["view"], arrays["roughness"])
+        # one kernel for this iteration's per-pixel data; the later kernels read it
+        dr.eval(pixels, points.v, points.roughness)
         params = [dr.detach(p) for p in params]
         dr.enable_grad(params)
-        # two lobe sets built from the same parameters: the pairs gather from one, the per-lobe
-        # irradiance reads the other, so the reverse pass is one kernel (forward module docstring)
-        lobes = lobes_from_params(*params)
-        diffuse_lobes = lobes_from_params(*params)
-        yhat = geom.render_with(lobes, index, options, arrays["view"], arrays["roughness"], diffuse_lobes)
+        env = geom.render_points(points, lobes_from_params(*params), options)
+        # reverse mode in two stages: the loss's gradient w.r.t. the environment term (one kernel
+        # for all three channels, correction included), then from there back to the parameters
+        env_free = dr.detach(env)
+        dr.enable_grad(env_free)
         if corrected == "offset":
-            yhat = yhat + dr.gather(mi.Color3f, arrays["correction"], index)
+            yhat = env_free + pixels.correction
         elif corrected == "ratio":
-            yhat = yhat * dr.gather(mi.Color3f, arrays["correction"], index)
-        loss = loss_terms(problem, yhat, index, per_image, log_weight, arrays)
+            yhat = env_free * pixels.correction
+        else:
+            yhat = env_free
+        loss = loss_terms(problem, yhat, pixels, per_image, log_weight, arrays)
         dr.backward(loss)
+        grad_env = dr.grad(env_free)
+        dr.eval(grad_env)
+        dr.set_grad(env, grad_env)
+        dr.backward_from(env)
         c1 = 1.0 - dr.power(BETA1, t)
         c2 = 1.0 - dr.power(BETA2, t)
         new_p, new_m1, new_m2 = [], [], []
@@ -200,6 +257,16 @@ def _make_step(
         return new_p, new_m1, new_m2, dr.detach(loss)
 
     return dr.freeze(step)
+
+
+def _index_block(rng: np.random.Generator, geom: ExemplarGeometry, grid: int, iters: int) -> mi.UInt32:
+    """The pixel indices of the next ``iters`` (≤ :data:`INDEX_BLOCK`) iterations, drawn in turn
+    (:func:`stratified_indices`) and zero-padded to :data:`INDEX_BLOCK` iterations (a fixed width:
+    the frozen step is not traced again for a short last block)."""
+    draws = [stratified_indices(rng, geom.count, geom.height, geom.width, grid) for _ in range(iters)]
+    block = np.zeros(INDEX_BLOCK * len(draws[0]), np.uint32)
+    block[: sum(len(d) for d in draws)] = np.concatenate(draws)
+    return mi.UInt32(aligned(block))
 
 
 def run_adam(
@@ -236,13 +303,16 @@ def run_adam(
     dr.sync_thread()
     was_enabled = gc.isenabled()
     gc.disable()
+    count = geom.count * per_image
     try:
         for k in range(iters):
             it = first + k
+            if k % INDEX_BLOCK == 0:
+                block = _index_block(rng, geom, grid, min(INDEX_BLOCK, iters - k))
             decay = LR_FLOOR + (1.0 - LR_FLOOR) * 0.5 * (1.0 + math.cos(math.pi * k / iters))
             lrs = [mi.Float(lr_axis * decay), mi.Float(lr * decay), mi.Float(lr * decay)]
-            index = mi.UInt32(aligned(stratified_indices(rng, geom.count, geom.height, geom.width, grid)))
-            params, m1, m2, loss = step(params, m1, m2, mi.Float(float(k + 1)), lrs, index, arrays)
+            offset = mi.UInt32((k % INDEX_BLOCK) * count)
+            params, m1, m2, loss = step(params, m1, m2, mi.Float(float(k + 1)), lrs, block, offset, arrays)
             if it % READBACK == 0:
                 history.append([it, float(loss.numpy()[0])])
     finally:

@@ -41,7 +41,9 @@ def model_predictor(bundle, fixed_roughness: float | None = None) -> Callable[[d
         far = ()
         if bundle.lighting.config.num_shots == 4:  # a near-far model reads the far pair too
             if "far_flash" not in img or "far_noflash" not in img:
-                raise InputError(f"the data set has shots {names}; this near-far model needs a near-far data set")
+                raise InputError(
+                    f"the data set has shots {names}; this near-far model needs a near-far data set"
+                )
             far = (img["far_flash"], img["far_noflash"])
         return predict(bundle, img["flash"], img["noflash"], *far, fixed_roughness=fixed_roughness).maps
 
