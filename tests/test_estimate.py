@@ -658,3 +658,32 @@ def test_gallery_real_photos(tmp_path, capsys, data_dir):
     code, cap = _gallery([data_dir / "photos" / "flash_only", "--docs", tmp_path, "--json"], capsys)
     assert code == 0
     assert len(json.loads(cap.out)["photos"]) == 13
+
+
+def test_merge_detail_keeps_global_low_frequencies_and_tile_detail(rng):
+    """merge_detail = up(global − down(tiled)) + tiled: a constant offset of the global maps moves
+    the result by that offset; the tiles' detail survives; normals stay unit and upward."""
+    from ebr_mitsuba.estimate.tiling import merge_detail, upsample_bilinear
+    from ebr_mitsuba.materials import resample_svbrdf
+
+    n, g = 32, 8
+    normal = np.dstack([rng.normal(0, 0.1, (n, n, 2)), np.ones((n, n, 1))]).astype(np.float32)
+    normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+    tiled = SVBRDF(
+        normal=normal,
+        diffuse=rng.uniform(0.3, 0.6, (n, n, 3)).astype(np.float32),
+        specular=rng.uniform(0.02, 0.1, (n, n, 3)).astype(np.float32),
+        roughness=rng.uniform(0.3, 0.6, (n, n)).astype(np.float32),
+    )
+    down = resample_svbrdf(tiled, g)
+    glob = SVBRDF(down.normal, down.diffuse + 0.2, down.specular, down.roughness - 0.1)
+    out = merge_detail(glob, tiled)
+    np.testing.assert_allclose(out.diffuse, tiled.diffuse + 0.2, atol=1e-5)
+    np.testing.assert_allclose(out.roughness, tiled.roughness - 0.1, atol=1e-5)
+    np.testing.assert_allclose(out.specular, tiled.specular, atol=1e-5)
+    np.testing.assert_allclose(np.linalg.norm(out.normal, axis=-1), 1, atol=1e-5)
+    assert (out.normal[..., 2] > 0).all()
+    # clipping keeps maps valid; the bilinear up of a constant is that constant
+    hot = SVBRDF(down.normal, np.minimum(down.diffuse + 0.9, 1), down.specular, down.roughness)
+    assert merge_detail(hot, tiled).diffuse.max() <= 1
+    np.testing.assert_allclose(upsample_bilinear(np.full((4, 4, 3), 0.7), (16, 16)), 0.7)

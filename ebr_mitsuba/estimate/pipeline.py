@@ -49,7 +49,7 @@ from .inputs import DEFAULT_FOV, DEFAULT_MAX_SHIFT, Inputs, load_inputs
 from .metrics import map_rmse
 from .refine import RefineConfig, ShotTarget, fit_flash_intensity, refine, rerender_errors
 from .resample import DEFAULT_MAX_SIZE, model_grid, working_size
-from .tiling import DEFAULT_OVERLAP, tiled_maps
+from .tiling import DEFAULT_OVERLAP, merge_detail, tiled_maps
 
 ESTIMATE_FORMAT = "ebr-estimate/1"
 INFERENCE_MODULE = "ebr_mitsuba.train.inference"
@@ -260,7 +260,7 @@ def run_estimate(
             )
             return _check_prediction(_predict(inf, bundle, tile_inputs), grid, True)[0]
 
-        maps = tiled_maps(predict_tile, big.images, grid, cfg.tile_overlap)
+        maps = merge_detail(maps, tiled_maps(predict_tile, big.images, grid, cfg.tile_overlap))
         stage("tiles", t0)
     work_inputs = inputs.resampled((work, work))
 
