@@ -21,12 +21,7 @@ from ebr_mitsuba.sgenv import SGEnvironment
 H = W = 8
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")  # conftest: torch on one thread
 
 
 def _maps(seed: int, batch: int = 2) -> Maps:

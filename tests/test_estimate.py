@@ -545,7 +545,6 @@ def test_estimate_tiled(tmp_path, capsys, fake_net):
     assert json.loads(stdout)["resolution"] == GRID
 
 
-@pytest.mark.slow
 def test_real_model_end_to_end(tmp_path, capsys):
     """The shipped model on a generated near capture (needs ebr_mitsuba.train.inference)."""
     inference = pytest.importorskip("ebr_mitsuba.train.inference")
@@ -579,6 +578,34 @@ def test_real_model_end_to_end(tmp_path, capsys):
         ["--flash", paths["flash"], "--checkpoint", ckpt, "--out", tmp_path / "o2"], capsys
     )
     _assert_refused(code, err, tmp_path / "o2")
+
+
+def test_real_model_near_far_and_real_flash_only_photo(tmp_path, capsys, data_dir):
+    """The shipped (near) model on a generated near-far capture (the far pair feeds the re-renders
+    and the refinement, with a warning) and on a real flash-only phone photo (tiled: 128² from the
+    64² grid)."""
+    from ebr_mitsuba.capture import capture
+    from ebr_mitsuba.estimate.resample import model_grid
+    from ebr_mitsuba.train import inference
+
+    grid = model_grid(inference.load_model(None))
+    cap = tmp_path / "cap"
+    capture(_material(grid), ENV, "near-far", cap, spp=4, res=grid, progress=False)
+    out = tmp_path / "nf"
+    argv = ["--flash", cap / "flash.exr", "--noflash", cap / "noflash.exr", "--far-flash", cap / "far_flash.exr"]
+    argv += ["--far-noflash", cap / "far_noflash.exr", "--out", out, "--refine-steps", "5", "--json"]
+    code, stdout, err = _estimate(argv, capsys)
+    assert code == 0, err
+    summary = json.loads(stdout)
+    _check_outputs(out, summary, far=True)
+    assert any("far shots are used for the re-renders" in w for w in summary["inputs"]["warnings"])
+    photo = sorted((data_dir / "photos" / "flash_only").glob("*.png"))[0]
+    out = tmp_path / "photo"
+    code, stdout, err = _estimate(["--flash", photo, "--out", out, "--max-size", "128", "--json"], capsys)
+    assert code == 0, err
+    summary = json.loads(stdout)
+    _check_outputs(out, summary, flash_only=True)
+    assert summary["tiled"] and summary["resolution"] == 128
 
 
 # -- demo -------------------------------------------------------------------------------------------

@@ -32,13 +32,7 @@ from ebr_mitsuba.nets.transforms import (
     unit_normal,
 )
 
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")  # conftest: torch on one thread
 
 
 def _const_maps(b=1, h=2, w=3, normal=(0.0, 0.0, 1.0), diffuse=0.5, specular=0.04, roughness=0.5):

@@ -31,12 +31,7 @@ FIXTURE_CONFIG = "train_tiny.toml"  # trained by the tiny_model fixture (checked
 NEAR_FAR_SMOKE = "train_tiny_near_far.toml"  # trained by tests/test_train_near_far.py
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")  # conftest: torch on one thread
 
 
 def _generate(name: str, out: Path) -> Path:

@@ -25,12 +25,7 @@ CONFIGS = ROOT / "configs"
 NEAR_FAR_SHOTS = ["flash", "noflash", "far_flash", "far_noflash"]
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _one_torch_thread():
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")  # conftest: torch on one thread
 
 
 def _generate(name: str, out: Path, count: int | None = None) -> Path:
