@@ -592,8 +592,9 @@ def test_real_model_near_far_and_real_flash_only_photo(tmp_path, capsys, data_di
     cap = tmp_path / "cap"
     capture(_material(grid), ENV, "near-far", cap, spp=4, res=grid, progress=False)
     out = tmp_path / "nf"
-    argv = ["--flash", cap / "flash.exr", "--noflash", cap / "noflash.exr", "--far-flash", cap / "far_flash.exr"]
-    argv += ["--far-noflash", cap / "far_noflash.exr", "--out", out, "--refine-steps", "5", "--json"]
+    argv = ["--flash", cap / "flash.exr", "--noflash", cap / "noflash.exr"]
+    argv += ["--far-flash", cap / "far_flash.exr", "--far-noflash", cap / "far_noflash.exr"]
+    argv += ["--out", out, "--refine-steps", "5", "--json"]
     code, stdout, err = _estimate(argv, capsys)
     assert code == 0, err
     summary = json.loads(stdout)

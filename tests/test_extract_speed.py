@@ -45,48 +45,6 @@ def _problem(seed: int = 0):
     )
 
 
-def _grads(params):
-    import drjit as dr
-
-    return [np.asarray(dr.grad(p).numpy(), np.float64) for p in params]
-
-
-def test_flat_sg_environment_matches_sg_environment_in_value_and_gradient(variant):
-    """The extraction's closed form (evaluated gather sources, Local gathers) gives the renderer's
-    values and gradients (rtol 1e-5)."""
-    import drjit as dr
-    import mitsuba as mi
-
-    from ebr_mitsuba.extract.forward import flat_sg_environment
-    from ebr_mitsuba.extract.optimize import initial_params, lobes_from_params
-    from ebr_mitsuba.render import RenderOptions
-    from ebr_mitsuba.render.fast import environment
-
-    problem = _problem()
-    geom = problem.geometry
-    points = geom.points(geom.all_indices())
-    w = np.random.default_rng(1).uniform(0.5, 1.5, (3, points.count)).astype(np.float32)
-    weights = mi.Color3f(w[0], w[1], w[2])
-    opts = RenderOptions(mode="sg")
-
-    def run(ours: bool):
-        params = initial_params(*_lobes(6, 2))
-        dr.enable_grad(params)
-        lobes = lobes_from_params(*params)
-        if ours:
-            value = flat_sg_environment(points, lobes, opts)
-        else:
-            value = environment(points, lobes, opts)
-        dr.backward(dr.sum(dr.sum(value * weights)))
-        return np.asarray(value.numpy(), np.float64), _grads(params)
-
-    v_ref, g_ref = run(False)
-    v_new, g_new = run(True)
-    np.testing.assert_allclose(v_new, v_ref, rtol=1e-5, atol=1e-7)
-    for a, b in zip(g_new, g_ref):
-        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6 * np.abs(b).max())
-
-
 def _reference_adam(problem, lobes, iters, *, lr, lr_axis, log_weight, options, corrected, seed):
     """Plain (unfrozen, one lobe set, one reverse pass) Adam with the same loss, index draws and
     schedule as :func:`run_adam`; the update in numpy (float64)."""

@@ -12,16 +12,9 @@ Pixel indices are flat over the exemplar stack: ``index = i·H·W + row·W + col
 Every per-call value (camera, indices, quadrature seed) is data or opaque: one kernel serves all
 iterations.
 
-``mode="sg"`` runs :func:`flat_sg_environment`: the flat-normal branch of
-:func:`ebr_mitsuba.render.env_sg.sg_environment`, same math and same values (its per-pair
-:func:`~ebr_mitsuba.render.env_sg.specular_sg_pairs` and per-lobe
-:func:`~ebr_mitsuba.sg.sg_irradiance`), arranged for the reverse pass of the Adam loop: the
-gathered lobe and point arrays are evaluated together before the pair kernel, and the lobe
-gathers use ``ReduceMode.Local`` (pairs are lobe-major, so a packet of lanes shares its lobe and
-the reverse-mode scatter-add pre-reduces it to one atomic). With the renderer's version (lazy
-gather sources, expanded scatter targets) each Adam step ran the reverse pass as five kernels over
-all pairs, each recomputing the forward pass, 70 kernel launches in all; with this one, one
-reverse kernel and 40 launches (either change alone keeps the reverse pass in one kernel).
+``mode="sg"`` is the renderer's :func:`ebr_mitsuba.render.env_sg.sg_environment`, whose
+evaluation order and gather mode keep each Adam step's reverse pass in one kernel over the
+(pixel, lobe) pairs (see its docstring; ``tests/test_extract_speed.py`` checks the kernel count).
 """
 
 from __future__ import annotations
@@ -32,13 +25,10 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..brdf import INV_PI
 from ..geometry import Shot
-from ..render.env_sg import specular_sg_pairs, unit_axes
 from ..render.fast import EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR, environment
 from ..render.inputs import DrLobes, RenderOptions
 from ..render.points import ShadingPoints, grid_positions, opaque_point, view_vectors
-from ..sg import sg_irradiance
 
 
 @dataclass
@@ -108,8 +98,6 @@ class ExemplarGeometry:
         """:meth:`render` at shading points from :meth:`points`."""
         if lobes.num_lobes == 0:
             return dr.zeros(mi.Color3f, points.count)
-        if options.mode == "sg":
-            return flat_sg_environment(points, lobes, options)
         return environment(points, lobes, options)
 
     def all_indices(self) -> mi.UInt32:
@@ -132,39 +120,6 @@ class ExemplarGeometry:
         v = np.stack([cam[0] - x, cam[1] - y, np.full_like(x, cam[2])], axis=-1)
         v /= np.linalg.norm(v, axis=-1, keepdims=True)
         return np.stack([-v[:, 0], -v[:, 1], v[:, 2]], axis=-1)
-
-
-def flat_sg_environment(points: ShadingPoints, lobes: DrLobes, options: RenderOptions) -> mi.Color3f:
-    """Closed-form environment radiance at flat-normal ``points`` (``points.count`` lanes): the
-    value of :func:`ebr_mitsuba.render.env_sg.sg_environment`, with the evaluation order and
-    gather mode of the module docstring."""
-    if not points.flat_normal:
-        raise ValueError("flat_sg_environment: the points must have the flat normal +z")
-    count = points.count
-    k_lobes = lobes.num_lobes
-    if k_lobes == 0:
-        return dr.zeros(mi.Color3f, count)
-    axes = unit_axes(lobes)
-    z = mi.Vector3f(0.0, 0.0, 1.0)
-    per_lobe = sg_irradiance(axes, lobes.sharpness, lobes.amplitude, z, options.irradiance_nodes)
-    # the gathered arrays, evaluated together: one kernel per width instead of one per component
-    dr.eval(axes, lobes.sharpness, lobes.amplitude, per_lobe, points.v, points.roughness)
-    irradiance = dr.sum(per_lobe, axis=-1)  # over lobes (axis 0 would sum the RGB channels)
-    idx = dr.arange(mi.UInt32, k_lobes * count)
-    k = idx // count
-    q = idx - k * count
-    mode = dr.ReduceMode.Local  # lobe-major pairs: a packet of lanes shares its lobe
-    axis = dr.gather(mi.Vector3f, axes, k, mode=mode)
-    lam = dr.gather(mi.Float, lobes.sharpness, k, mode=mode)
-    amp = dr.gather(mi.Color3f, lobes.amplitude, k, mode=mode)
-    n = dr.gather(mi.Vector3f, points.n, q)
-    v = dr.gather(mi.Vector3f, points.v, q)
-    s = dr.gather(mi.Color3f, points.specular, q)
-    r = dr.gather(mi.Float, points.roughness, q)
-    value = specular_sg_pairs(n, v, s, r, axis, lam, amp, options.fresnel)
-    acc = dr.zeros(mi.Color3f, count)
-    dr.scatter_reduce(dr.ReduceOp.Add, acc, value, q)
-    return acc + points.diffuse * (INV_PI * irradiance)
 
 
 def stratified_indices(

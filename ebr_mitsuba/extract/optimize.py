@@ -21,7 +21,7 @@ forward values) and about 40 launches in all, down from 6 pair kernels and 77 la
 
 * the reverse pass runs in two stages: the loss's gradient w.r.t. the environment term is
   evaluated first (one kernel, correction included), then propagated to the lobes; together with
-  :func:`ebr_mitsuba.extract.forward.flat_sg_environment` this keeps it in one pair kernel;
+  the renderer's :func:`ebr_mitsuba.render.env_sg.sg_environment` this keeps it in one pair kernel;
 * the sampled pixels' data (target, correction, saturation: one :data:`ROW`-float row per pixel,
   one cache line per sample instead of one per channel and array), log-targets, view vectors and
   roughness are gathered once per iteration in one kernel, not re-gathered in every kernel;

@@ -79,26 +79,37 @@ def specular_sg_pairs(n, v, specular, roughness, axis, sharpness, amplitude, fre
 
 def sg_environment(points: ShadingPoints, lobes: DrLobes, *, fresnel: str = "schlick",
                    irradiance_nodes: int = 16) -> mi.Color3f:
-    """Environment radiance towards ``v`` at every point (``points.count`` lanes), closed form."""
+    """Environment radiance towards ``v`` at every point (``points.count`` lanes), closed form.
+
+    Arranged for the reverse pass (measured in the SG-extraction loop, where it halved the time):
+    with flat normals the per-lobe irradiance and the gathered lobe and point arrays are evaluated
+    before the pair kernel, and the lobe gathers use ``ReduceMode.Local`` (pairs are lobe-major, so
+    a packet of lanes shares its lobe and the reverse-mode scatter-add pre-reduces to one atomic).
+    Lazy gather sources split the reverse pass into one kernel per source, each recomputing the
+    forward pass over all pairs.
+    """
     count = points.count
     k_lobes = lobes.num_lobes
     if k_lobes == 0:
         return dr.zeros(mi.Color3f, count)
     axes = unit_axes(lobes)
+    if points.flat_normal:
+        z = mi.Vector3f(0.0, 0.0, 1.0)
+        per_lobe = sg_irradiance(axes, lobes.sharpness, lobes.amplitude, z, irradiance_nodes)
+        dr.eval(axes, lobes.sharpness, lobes.amplitude, per_lobe, points.v, points.roughness)
     idx = dr.arange(mi.UInt32, k_lobes * count)
     k = idx // count
     q = idx - k * count
-    axis = dr.gather(mi.Vector3f, axes, k)
-    lam = dr.gather(mi.Float, lobes.sharpness, k)
-    amp = dr.gather(mi.Color3f, lobes.amplitude, k)
+    mode = dr.ReduceMode.Local
+    axis = dr.gather(mi.Vector3f, axes, k, mode=mode)
+    lam = dr.gather(mi.Float, lobes.sharpness, k, mode=mode)
+    amp = dr.gather(mi.Color3f, lobes.amplitude, k, mode=mode)
     n = dr.gather(mi.Vector3f, points.n, q)
     v = dr.gather(mi.Vector3f, points.v, q)
     s = dr.gather(mi.Color3f, points.specular, q)
     r = dr.gather(mi.Float, points.roughness, q)
     value = specular_sg_pairs(n, v, s, r, axis, lam, amp, fresnel)
     if points.flat_normal:
-        z = mi.Vector3f(0.0, 0.0, 1.0)
-        per_lobe = sg_irradiance(axes, lobes.sharpness, lobes.amplitude, z, irradiance_nodes)
         irradiance = dr.sum(per_lobe, axis=-1)  # over lobes (axis 0 would sum the RGB channels)
         diffuse = points.diffuse * (INV_PI * irradiance)
     else:
