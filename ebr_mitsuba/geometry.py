@@ -21,6 +21,10 @@ NEAR_FOV = 45.0
 FAR_FOV = math.degrees(2.0 * math.atan(0.1))
 DEFAULT_FLASH_INTENSITY = 10.0  # W/sr of the isotropic flash; recorded in capture.json
 SETUPS = ("near", "near-far", "five-light", "multi-view")
+# Roughness of the exemplar materials (diffuse 0.1, specular 0.2; DESIGN §1): the default of
+# `ebr exemplars`, of data configs and of the demo, chosen from the roughness study of
+# docs/bench/extract_sg.md §3 (`ebr bench extract-sg`).
+DEFAULT_EXEMPLAR_ROUGHNESS = (0.1, 0.3, 0.6, 0.9)
 
 
 @dataclass(frozen=True)

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..geometry import DEFAULT_EXEMPLAR_ROUGHNESS
 from ._common import emit_json, progress, say
 
 NAME = "demo"
@@ -40,7 +41,7 @@ DEFAULT_REFINE_STEPS = 100
 CHECKER_COLORS = ((0.60, 0.42, 0.25), (0.12, 0.09, 0.07))
 CHECKER_SQUARES = 8
 SPECULAR, ROUGHNESS = 0.04, 0.35
-EXEMPLAR_ROUGHNESS = (0.1, 0.3, 0.6, 0.9)
+EXEMPLAR_ROUGHNESS = DEFAULT_EXEMPLAR_ROUGHNESS
 
 
 def add_arguments(parser) -> None:

@@ -30,12 +30,13 @@ import time
 from pathlib import Path
 
 from ..errors import InputError
+from ..geometry import DEFAULT_EXEMPLAR_ROUGHNESS
 from ._common import emit_json, say
 
 NAME = "exemplars"
 HELP = "render environment (or point-light) exemplars of the uniform exemplar material"
 
-DEFAULT_ROUGHNESS = "0.1,0.3,0.6,0.9"
+DEFAULT_ROUGHNESS = ",".join(f"{r:g}" for r in DEFAULT_EXEMPLAR_ROUGHNESS)
 RENDERERS = ("mitsuba", "fast")
 DEFAULT_RES = 256
 DEFAULT_SPP = 256

@@ -97,7 +97,7 @@ from pathlib import Path
 import tomllib
 
 from ..errors import ConfigError, InputError
-from ..geometry import DEFAULT_FLASH_INTENSITY, SETUPS
+from ..geometry import DEFAULT_EXEMPLAR_ROUGHNESS, DEFAULT_FLASH_INTENSITY, SETUPS
 from ..procedural import ENV_KINDS, INTENSITY_LEVELS
 from ..scene import INTEGRATORS
 
@@ -143,8 +143,12 @@ class RenderSection:
 
 @dataclass(frozen=True)
 class ExemplarSection:
-    env_roughness: list[float] = _f([0.1, 0.3, 0.6, 0.9], "environment exemplar roughness", unit=True)
-    point_roughness: list[float] = _f([0.1, 0.3, 0.6, 0.9], "point-light exemplar roughness", unit=True)
+    env_roughness: list[float] = _f(
+        list(DEFAULT_EXEMPLAR_ROUGHNESS), "environment exemplar roughness", unit=True
+    )
+    point_roughness: list[float] = _f(
+        list(DEFAULT_EXEMPLAR_ROUGHNESS), "point-light exemplar roughness", unit=True
+    )
 
 
 @dataclass(frozen=True)
