@@ -84,7 +84,7 @@ def test_physical_statistics():
         metal = make_material("metal", seed, 64)
         assert metal.diffuse.max() <= 0.03
         f0 = metal.specular.reshape(-1, 3)
-        assert f0.mean() > 0.3
+        assert f0.mean() > 0.15  # tarnished titanium at worst; dielectrics stay ≤ 0.08
         assert make_material("fabric", seed, 64).roughness.mean() > 0.6
         assert make_material("marble", seed, 64).roughness.mean() < 0.35
     gold = make_material("metal", 0, 64, metal="gold")

@@ -103,7 +103,27 @@ def training_summary(run_dir: Path) -> dict:
     }
     summary_path = run_dir / "summary.json"
     extra = json.loads(summary_path.read_text()) if summary_path.is_file() else {}
-    return {"phases": out, "samples": extra.get("samples"), "device": extra.get("device", "cpu")}
+    config_path = run_dir / "config.json"
+    loss = json.loads(config_path.read_text()).get("loss", {}) if config_path.is_file() else {}
+    return {
+        "phases": out,
+        "samples": extra.get("samples"),
+        "device": extra.get("device", "cpu"),
+        "loss": loss,
+    }
+
+
+def objective_text(loss: dict) -> str:
+    """One sentence on the training objective of a run, from its ``[loss]`` settings."""
+    maps = ", ".join(f"{k} {loss[k]:g}" for k in ("normal", "diffuse", "specular", "roughness") if k in loss)
+    text = f"Objective: L1 per map (weights {maps})" if maps else "Objective: L1 per map"
+    if loss.get("render", 0.0) > 0:
+        text += (
+            f", plus the rendering loss (weight {loss['render']:g}; L1 of log(x + 1) over "
+            f"{loss.get('render_pairs', 10)} view/light pairs, {loss.get('render_highlights', 5)} with a "
+            "forced highlight, rendered by the Dr.Jit renderer through `dr.wrap`) in refinement and stage 2"
+        )
+    return text + "."
 
 
 def _row(name: str, m: dict) -> str:
@@ -279,7 +299,8 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
         f"Run `{runs / 'small'}` on {summary['device']}, {summary['samples']} samples, one torch thread "
         "(`configs/train_small.toml`). Stage 1 trains the lighting net, then the cascade in sequence "
         "with exemplars selected under the true environment; stage 2 (`finetune`) fine-tunes the whole "
-        "cascade on SGs extracted from the lighting net's own exemplars. Loss: mean of the last four "
+        "cascade on SGs extracted from the lighting net's own exemplars. "
+        f"{objective_text(summary.get('loss', {}))} Loss columns: mean of the last four "
         "logged values; learning rate cosine-decayed per phase.",
         "",
         "| phase | steps | first loss | final loss | samples / s | seconds |",

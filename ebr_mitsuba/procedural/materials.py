@@ -23,7 +23,8 @@ tiles       ``style`` "tiles" | "bricks"; ``rows`` (int, tiles per side, 3–8 t
 wood        ``planks`` (int, boards across, 1–6); ``rings`` (int, growth rings across the sample, 8–30);
             ``species`` "light" | "oak" | "walnut" | "cherry"; ``roughness`` (finish, 0.2–0.7)
 metal       ``metal`` (a :data:`METALS` name); ``finish`` "brushed" | "scratched" | "hammered";
-            ``scratches`` (int, 0–80); ``roughness`` (base, 0.08–0.4)
+            ``scratches`` (int, 0–80); ``roughness`` (base, 0.08–0.55); ``tarnish`` (0–0.45: F₀ ×
+            (1 − tarnish), oxidised or dull metal darker than the clean metal's F₀)
 leather     ``cells`` (int, pebbles per side, 14–36); ``color``; ``depth`` (pebble height scale,
             0.4–1.5); ``roughness`` (0.35–0.7)
 plaster     ``style`` "trowel" | "stucco" | "orange_peel"; ``color`` (paint);
@@ -289,13 +290,14 @@ def _segments(u, v, rng, count, size):
     return out
 
 
-def metal(rng, size, *, metal=None, finish=None, scratches=None, roughness=None, source=""):
+def metal(rng, size, *, metal=None, finish=None, scratches=None, roughness=None, tarnish=None, source=""):
     """Bare metal, brushed, scratched or hammered; coloured F₀, near-black diffuse (grime)."""
     p = _Params("metal", rng)
     name = p.choice("metal", metal, tuple(METALS))
     finish = p.choice("finish", finish, ("brushed", "scratched", "hammered"))
     scratches = p.integer("scratches", scratches, 0, 400, draw=(0, 80))
-    roughness = p.number("roughness", roughness, 0.0, 1.0, draw=(0.08, 0.4))
+    roughness = p.number("roughness", roughness, 0.0, 1.0, draw=(0.08, 0.55))
+    tarnish = p.number("tarnish", tarnish, 0.0, 0.9, draw=(0.0, 0.45))
     u, v = grid(size)
     max_freq = size / 2
     brush = fbm(u, v, rng, freq=(1, 64), octaves=3, max_freq=max_freq)
@@ -305,7 +307,7 @@ def metal(rng, size, *, metal=None, finish=None, scratches=None, roughness=None,
     scratch = _segments(u, v, rng, scratches, size)
 
     grime_mask = smoothstep(0.25, 0.7, grime)
-    f0 = np.asarray(METALS[name]) * (1.0 - 0.25 * grime_mask[..., None])
+    f0 = np.asarray(METALS[name]) * (1.0 - tarnish) * (1.0 - 0.25 * grime_mask[..., None])
     diffuse = _grey(0.03 * grime_mask, u.shape) * np.array([1.0, 0.9, 0.8])
     if finish == "brushed":
         height = 0.0008 * brush

@@ -219,7 +219,9 @@ class Trainer:
             self._run_phase(index, name, steps, modules, lr0)
         if self.dist.main:
             self._save(self.out / "model.pt")
-            self.summary["seconds"] = round(time.perf_counter() - t_start, 1)
+            # training time summed over the phases, so a resumed (or re-exported) run keeps its total
+            phase_seconds = sum(p.get("seconds", 0.0) for p in self.summary["phases"].values())
+            self.summary["seconds"] = round(max(phase_seconds, time.perf_counter() - t_start), 1)
             self.summary["samples"] = len(self.data)
             self.summary["device"] = str(self.device)
             self.summary["world_size"] = self.dist.world
