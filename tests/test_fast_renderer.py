@@ -173,9 +173,12 @@ def test_quadrature_is_deterministic_and_zero_without_lobes():
     env = random_env(rng, 3)
     a = render_numpy(sv, env, near_shot(False), mode="quadrature", spp=8)
     b = render_numpy(sv, env, near_shot(False), mode="quadrature", spp=8)
-    np.testing.assert_array_equal(a, b)
+    # the same sample pattern; the per-pixel sums are scatter-reduced across Dr.Jit's threads, whose
+    # float32 addition order may vary (1 ulp), so "the same" is to 1e-6, far below what a change of
+    # pattern does (another seed moves pixels by percents)
+    np.testing.assert_allclose(a, b, rtol=1e-6, atol=1e-7)
     c = render_numpy(sv, env, near_shot(False), mode="quadrature", spp=8, seed=1)
-    assert not np.array_equal(a, c)
+    assert np.max(np.abs(a - c)) > 1e-3 * np.max(np.abs(a))
     for mode in MODES:
         assert np.all(render_numpy(sv, SGEnvironment.empty(), near_shot(False), mode=mode) == 0)
         assert np.all(render_numpy(sv, env, near_shot(False, env=False), mode=mode) == 0)

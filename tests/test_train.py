@@ -385,7 +385,8 @@ def test_cli_eval_json(tiny, tiny_model, capsys):
     # the same checkpoint as a baseline scores the same maps on the same pairs
     again = out["baselines"]["again"]
     assert again["per_map_rmse"] == pytest.approx(out["per_map_rmse"], rel=1e-6)
-    assert again["rerender_rmse"] == pytest.approx(out["rerender_rmse"], rel=1e-6)
+    # float32 renders summed by Dr.Jit's threads: the reduction order may differ (≈1e-6 relative)
+    assert again["rerender_rmse"] == pytest.approx(out["rerender_rmse"], rel=1e-5)
     for bad in ("again", "again=", f"mean_maps={tiny_model}"):
         assert (
             main(["eval", "--checkpoint", str(tiny_model), "--data", str(tiny), "--baseline-checkpoint", bad])
