@@ -546,9 +546,9 @@ def test_estimate_tiled(tmp_path, capsys, fake_net):
 
 
 def test_real_model_end_to_end(tmp_path, capsys):
-    """The shipped model on a generated near capture (needs ebr_mitsuba.train.inference)."""
-    inference = pytest.importorskip("ebr_mitsuba.train.inference")
+    """The shipped model on a generated near capture."""
     from ebr_mitsuba.estimate.resample import model_grid
+    from ebr_mitsuba.train import inference
 
     grid = model_grid(inference.load_model(None))
     paths = _write_capture(tmp_path, n=grid)
@@ -682,7 +682,6 @@ def test_gallery_page(tmp_path, capsys, fake_net):
 @pytest.mark.slow
 def test_gallery_real_photos(tmp_path, capsys, data_dir):
     """The 13 real flash-only photos with the shipped model."""
-    pytest.importorskip("ebr_mitsuba.train.inference")
     code, cap = _gallery([data_dir / "photos" / "flash_only", "--docs", tmp_path, "--json"], capsys)
     assert code == 0
     assert len(json.loads(cap.out)["photos"]) == 13
