@@ -33,13 +33,26 @@ class DistInfo:
 
 
 def init_distributed(device: torch.device) -> DistInfo:
-    """Join the process group when launched by ``torchrun`` (``WORLD_SIZE`` > 1)."""
+    """Join the process group when launched by ``torchrun`` (``WORLD_SIZE`` > 1).
+
+    On CUDA the group has both backends: NCCL for the gradients on the GPU, gloo for the CPU
+    scalars of :func:`all_mean`.
+    """
     world = int(os.environ.get("WORLD_SIZE", "1"))
     if world <= 1:
         return DistInfo()
     if not dist.is_initialized():
-        dist.init_process_group("nccl" if device.type == "cuda" else "gloo")
+        dist.init_process_group("cpu:gloo,cuda:nccl" if device.type == "cuda" else "gloo")
     return DistInfo(dist.get_rank(), dist.get_world_size(), int(os.environ.get("LOCAL_RANK", "0")))
+
+
+def local_device(device: torch.device) -> torch.device:
+    """The device of this process: under ``torchrun`` on CUDA, the GPU of ``LOCAL_RANK``."""
+    if device.type != "cuda" or int(os.environ.get("WORLD_SIZE", "1")) <= 1:
+        return device
+    local = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
+    torch.cuda.set_device(local)
+    return local
 
 
 def barrier(info: DistInfo) -> None:
@@ -69,4 +82,4 @@ def shutdown(info: DistInfo) -> None:
         dist.destroy_process_group()
 
 
-__all__ = ["DistInfo", "all_mean", "barrier", "init_distributed", "shutdown", "wrap"]
+__all__ = ["DistInfo", "all_mean", "barrier", "init_distributed", "local_device", "shutdown", "wrap"]

@@ -14,7 +14,6 @@ from pathlib import Path
 
 import torch
 
-from ..data import store
 from ..errors import InputError
 from ..svbrdf import SVBRDF
 from . import metrics
@@ -64,9 +63,7 @@ def evaluate(
 
     ds = GeneratedDataset(data)
     if intensity is None:
-        intensity = float(
-            store.read_json(Path(data) / store.DATASET_JSON)["config"]["capture"]["flash_intensity"]
-        )
+        intensity = float(ds.dataset["config"]["capture"]["flash_intensity"])
     pairs = metrics.rerender_pairs(seed)
     n = len(ds) if limit <= 0 else min(limit, len(ds))
     rows = []

@@ -101,7 +101,7 @@ class Trainer:
         self.resume = resume
         self.log = log or (lambda msg: None)
         self.progress = progress
-        self.device = pick_device(config.train.device)
+        self.device = ddp.local_device(pick_device(config.train.device))
         self.dist = ddp.init_distributed(self.device)
         if config.train.threads > 0:
             torch.set_num_threads(config.train.threads)
