@@ -26,7 +26,6 @@ luminance percentile mapped to 1) and the sRGB curve, so the pairs compare direc
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from pathlib import Path
 
@@ -211,10 +210,6 @@ def write_exemplars(out: Path, prediction) -> list[str]:
         preview(out / "exemplars" / f"{safe}.png", a, exposure_of(a))
         files.append(f"exemplars/{safe}.png")
     return files
-
-
-def with_intensity(shot: Shot, intensity: float) -> Shot:
-    return dataclasses.replace(shot, flash_intensity=float(intensity))
 
 
 __all__ = [

@@ -249,9 +249,9 @@ def run_estimate(
     stage("predict", t0)
 
     tiled = work > grid
+    work_inputs = inputs.resampled((work, work))
     if tiled:
         t0 = time.perf_counter()
-        big = inputs.resampled((work, work))
         log(f"tiled inference at {work}x{work} ({grid}-pixel tiles, overlap {cfg.tile_overlap})")
 
         def predict_tile(crops):
@@ -260,9 +260,8 @@ def run_estimate(
             )
             return _check_prediction(_predict(inf, bundle, tile_inputs), grid, True)[0]
 
-        maps = merge_detail(maps, tiled_maps(predict_tile, big.images, grid, cfg.tile_overlap))
+        maps = merge_detail(maps, tiled_maps(predict_tile, work_inputs.images, grid, cfg.tile_overlap))
         stage("tiles", t0)
-    work_inputs = inputs.resampled((work, work))
 
     t0 = time.perf_counter()
     shots = _shots(work_inputs)
@@ -286,11 +285,11 @@ def run_estimate(
                 pbar.set_postfix_str(f"loss {loss:.4g}")
                 pbar.refresh()
 
-        refined = refine(maps, env, targets, cfg.refine, progress)
+        refined = refine(maps, env, targets, cfg.refine, progress, before=net_errors)
         if pbar is not None:
             pbar.close()
         final_maps, final_env = refined.maps, refined.env
-        final_errors, final_renders = rerender_errors(final_maps, final_env, targets, mode, spp)
+        final_errors, final_renders = refined.after, refined.renders
         stage("refine", t0)
 
     summary = {

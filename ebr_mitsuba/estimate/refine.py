@@ -116,6 +116,7 @@ class RefineResult:
     after: dict
     seconds: float
     history: list[tuple[int, float]] = field(default_factory=list)
+    renders: dict[str, np.ndarray] = field(default_factory=dict)  # the re-renders behind ``after``
 
     def to_json(self) -> dict:
         return {
@@ -254,11 +255,13 @@ def refine(
     targets: list[ShotTarget],
     config: RefineConfig,
     progress: Callable[[int, int, float], None] | None = None,
+    before: dict | None = None,
 ) -> RefineResult:
     """Optimise ``maps`` (and with ``config.lobes`` the lobes of ``env``) against ``targets``.
 
     ``progress(step, steps, loss)`` is called every ``config.log_every`` steps. Returns the
-    refined maps/lobes and the re-render errors of the fast renderer before and after.
+    refined maps/lobes and the re-render errors of the fast renderer before and after (``before``:
+    those of ``maps``/``env`` when the caller has them already, from :func:`rerender_errors`).
     """
     import drjit as dr
     import mitsuba as mi
@@ -272,7 +275,8 @@ def refine(
         if t.image.shape[:2] != maps.shape or t.mask.shape != maps.shape:
             raise InputError(f"refinement: shot {t.shot.name} is {t.image.shape[:2]}, the maps {maps.shape}")
     opts = render_options(config.mode, config.spp)
-    before, _ = rerender_errors(maps, env, targets, config.mode, config.spp)
+    if before is None:
+        before, _ = rerender_errors(maps, env, targets, config.mode, config.spp)
     if config.steps == 0:
         return RefineResult(maps, env, before, before, time.perf_counter() - t0)
 
@@ -350,12 +354,11 @@ def refine(
                 loss += config.smooth_weight * tv
         dr.backward(loss)
         opt.step()
-        if progress is not None and ((step + 1) % config.log_every == 0 or step + 1 == config.steps):
-            value = float(loss[0])
+        if (step + 1) % config.log_every == 0 or step + 1 == config.steps:
+            value = float(loss[0])  # host sync: only every log_every steps
             history.append((step + 1, value))
-            progress(step + 1, config.steps, value)
-        elif (step + 1) % config.log_every == 0 or step + 1 == config.steps:
-            history.append((step + 1, float(loss[0])))
+            if progress is not None:
+                progress(step + 1, config.steps, value)
 
     with dr.suspend_grad():
         p = {k: opt[k] for k in params.values}
@@ -368,8 +371,8 @@ def refine(
             source="refined",
         )
         out_env = params.lobes_of(p).to_env() if params.lobes else env
-    after, _ = rerender_errors(out_maps, out_env, targets, config.mode, config.spp)
-    return RefineResult(out_maps, out_env, before, after, time.perf_counter() - t0, history)
+    after, renders = rerender_errors(out_maps, out_env, targets, config.mode, config.spp)
+    return RefineResult(out_maps, out_env, before, after, time.perf_counter() - t0, history, renders)
 
 
 __all__ = [
