@@ -227,7 +227,8 @@ def run(args) -> int:
         raise InputError(f"--checkpoint {args.checkpoint}: no such file; omit it for the shipped model")
     if args.spp < 1 or args.refine_steps < 0:
         raise InputError("--spp must be >= 1 and --refine-steps >= 0")
-    grid = model_grid(inference_module().load_model(args.checkpoint))
+    bundle = inference_module().load_model(args.checkpoint)  # before rendering: a bad checkpoint fails fast
+    grid = model_grid(bundle)
     res = int(args.res or grid)
     truth, env = default_material(res), default_env()
     timings = {}
@@ -246,7 +247,7 @@ def run(args) -> int:
         checkpoint=args.checkpoint,
         refine=RefineConfig(steps=args.refine_steps),
     )
-    summary = run_estimate(cfg, truth=truth, log=say, bar=progress)
+    summary = run_estimate(cfg, truth=truth, log=say, bar=progress, bundle=bundle)
     timings["estimate"] = round(time.perf_counter() - t, 3)
     est_env = (
         SGEnvironment.load(out / "estimate" / "env.json")

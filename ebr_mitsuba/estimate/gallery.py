@@ -26,7 +26,7 @@ from pathlib import Path
 from ..errors import InputError
 from ..fsutil import atomic_dir, atomic_write_text
 from ..imageio import EXR_SUFFIXES, JPEG_SUFFIXES, PNG_SUFFIXES
-from .pipeline import EstimateConfig, run_estimate
+from .pipeline import EstimateConfig, inference_module, run_estimate
 from .refine import RefineConfig
 
 STRIP = (
@@ -83,6 +83,7 @@ def build_gallery(
     photos = find_photos(photos_dir)
     docs_dir = Path(docs_dir)
     entries = []
+    bundle = inference_module().load_model(checkpoint)  # once for all photos
     with (
         tempfile.TemporaryDirectory(prefix="ebr-gallery-") as work,
         atomic_dir(docs_dir / "gallery") as img_dir,
@@ -97,7 +98,8 @@ def build_gallery(
                     out=str(est),
                     checkpoint=checkpoint,
                     refine=RefineConfig(steps=refine_steps),
-                )
+                ),
+                bundle=bundle,
             )
             image = f"gallery/{photo.stem}.png"
             strip(est, img_dir / f"{photo.stem}.png")

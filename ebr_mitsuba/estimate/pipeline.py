@@ -197,11 +197,14 @@ def run_estimate(
     truth: SVBRDF | None = None,
     log: Callable[[str], None] | None = None,
     bar: Callable | None = None,
+    bundle=None,
 ) -> dict:
     """Run the estimate described by ``cfg``; return the summary (also ``estimate.json``).
 
     ``truth``: ground-truth maps (``ebr demo``) to compare against, per map. ``log(msg)``: stage
     messages (stderr in the command); ``bar``: a tqdm-like factory for the refinement progress.
+    ``bundle``: the model already loaded from ``cfg.checkpoint`` (callers that estimate several
+    captures load it once); None loads it here.
     """
     log = log or (lambda msg: None)
     timings: dict[str, float] = {}
@@ -231,7 +234,8 @@ def run_estimate(
 
     t0 = time.perf_counter()
     inf = inference_module()
-    bundle = inf.load_model(cfg.checkpoint)
+    if bundle is None:
+        bundle = inf.load_model(cfg.checkpoint)
     grid = model_grid(bundle)
     if inputs.has_far and not model_takes_far(bundle):
         inputs.warnings.append(
