@@ -140,7 +140,7 @@ def render_exemplars(
 def run(args) -> int:
     import mitsuba as mi
 
-    from ..extract.exemplar_io import write_exemplars
+    from ..extract.exemplar_io import META, exemplar_file, write_exemplars
 
     roughness = parse_roughness(args.roughness)
     t0 = time.perf_counter()
@@ -157,9 +157,7 @@ def run(args) -> int:
     }
     out = write_exemplars(Path(args.out), images, roughness, kind, shot, renderer, env)
     seconds = time.perf_counter() - t0
-    from ..extract.exemplar_io import exemplar_file
-
-    files = [exemplar_file(r) for r in roughness] + ["exemplars.json"]
+    files = [exemplar_file(r) for r in roughness] + [META]
     if args.json:
         emit_json(
             {

@@ -16,19 +16,13 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ..envfit import fibonacci_sphere
 from ..geometry import Shot, near_shot
 from ..sgenv import SGEnvironment
 from .pipeline import AMPLITUDE_GRID, ExtractResult, check_exemplars, to_environment
 
 BASELINE_LOBES = 24
 BASELINE_SHARPNESS = (2.0, 4.0, 8.0, 16.0, 32.0)
-
-
-def fibonacci_sphere(n: int) -> np.ndarray:
-    """``n`` nearly uniform unit vectors (n, 3) over the whole sphere."""
-    from ..envfit import fibonacci_sphere as sphere
-
-    return sphere(n)
 
 
 def fibonacci_nnls(
@@ -57,7 +51,7 @@ def fibonacci_nnls(
     y = (images / scale).reshape(-1, 3)
     geometry = ExemplarGeometry(r.astype(np.float32), h, w, shot or near_shot(False))
     index = centre_indices(n, h, w, AMPLITUDE_GRID)
-    per = (images / scale).reshape(n, -1, 3)
+    per = y.reshape(n, -1, 3)
     rms = np.sqrt((per**2).sum(-1).mean(1))
     row_w = (1.0 / np.maximum(rms, 1e-30))[index // (h * w)]
     axis = fibonacci_sphere(count)

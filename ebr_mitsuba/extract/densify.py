@@ -18,8 +18,7 @@ from ..render.fast import EXEMPLAR_SPECULAR
 from .forward import ExemplarGeometry
 from .init import brdf_sharpness, level_sharpness, span_angle
 from .msssim import ms_ssim_error
-
-LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
+from .quadtree import LUMINANCE
 
 
 def error_maps(model: np.ndarray, targets: np.ndarray) -> np.ndarray:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
+from .quadtree import LUMINANCE
 
 
 def sg_integrals(sharpness: np.ndarray) -> np.ndarray:

@@ -83,12 +83,11 @@ import numpy as np
 from ..brdf import ROUGHNESS_MIN
 from ..errors import ConfigError, InputError
 from ..geometry import Shot, near_shot
+from ..render.fast import EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR
 from ..sgenv import SGEnvironment
+from .quadtree import LUMINANCE
 
-LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 MIN_SIZE = 4
-EXEMPLAR_DIFFUSE = 0.1
-EXEMPLAR_SPECULAR = 0.2
 
 
 @dataclass(frozen=True)
