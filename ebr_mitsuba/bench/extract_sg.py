@@ -44,6 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from ..geometry import DEFAULT_EXEMPLAR_ROUGHNESS
+from ._common import shared_data_dir
 
 SIZE = 128
 ROUGHNESS = DEFAULT_EXEMPLAR_ROUGHNESS
@@ -59,7 +60,6 @@ TEST_SPP = 256
 STUDY_SIZE = 64
 STUDY_GRID = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
 TIMING_SIZE = 256
-DATA_ENV = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "envmaps"
 PEAK_FLOP_PER_CYCLE = 32  # fp32 per core: 2 FMA pipes × 8 lanes × 2 (Zen 4 runs AVX-512 as 2×256 bit)
 
 
@@ -78,10 +78,6 @@ class Scene:
     test_noise2: float
     truth_sg: object | None = None
     truth_map: object | None = None
-
-
-def _data_env_dir() -> Path:
-    return Path(os.environ.get("EBR_DATA_DIR", DATA_ENV.parent)) / "envmaps"
 
 
 def _mitsuba_pair(svbrdf, emitter: dict, spp: int, seed: int) -> tuple[np.ndarray, float]:
@@ -462,6 +458,7 @@ def run(out_dir: Path, quick: bool = False) -> Path:
 
     from ..envmap import sg_to_equirect
     from ..extract import ExtractConfig
+    from ..fsutil import atomic_write_text
     from ..variant import ensure_variant
 
     ensure_variant()
@@ -477,7 +474,7 @@ def run(out_dir: Path, quick: bool = False) -> Path:
     size = 32 if quick else SIZE
     real_spp, test_spp = (32, 32) if quick else (REAL_SPP, TEST_SPP)
     seeds = PROCEDURAL_SEEDS[:1] if quick else PROCEDURAL_SEEDS
-    env_dir = _data_env_dir()
+    env_dir = shared_data_dir() / "envmaps"
     maps = [env_dir / m for m in REAL_MAPS if (env_dir / m).is_file()]
     maps = maps[:1] if quick else maps
     scenes = {
@@ -721,5 +718,5 @@ def run(out_dir: Path, quick: bool = False) -> Path:
     ]
     lines += ["`cuda_ad_rgb` was not measured (no CUDA device on this machine).", ""]
     path = out_dir / "extract_sg.md"
-    path.write_text("\n".join(lines) + "\n")
+    atomic_write_text(path, "\n".join(lines) + "\n")
     return path
