@@ -5,7 +5,8 @@
 
 Plugin classes subclass variant-specific Mitsuba types, so they are defined and registered after
 a variant is set: :func:`register_all` (called by :func:`ebr_mitsuba.ensure_variant`) does it, and
-importing this package registers them when a variant is already set.
+importing ``ebr_mitsuba`` (which imports this package then) or this package registers them when a
+variant is already set.
 """
 
 from __future__ import annotations

@@ -1,7 +1,8 @@
 """The ``sgenvmap`` emitter: an environment made of spherical Gaussians (DESIGN §3).
 
-Registered by :func:`ebr_mitsuba.ensure_variant`; the class derives from the variant's
-``mi.Emitter``, so this module is imported (and re-imported) only after a variant is set.
+Registered by :func:`ebr_mitsuba.ensure_variant`, or by ``import ebr_mitsuba`` after
+``mi.set_variant``; the class derives from the variant's ``mi.Emitter``, so this module is
+imported (and re-imported) only after a variant is set.
 """
 
 from __future__ import annotations
@@ -162,18 +163,24 @@ class SGEnvMap(mi.Emitter):
     Evaluation and pdf cost O(K) each; for large K and forward-only renders, rasterising to
     Mitsuba's ``envmap`` is faster.
 
-    XML::
+    XML (each example is loaded by ``tests/test_docs_xml.py``), from a file:
 
-        <emitter type="sgenvmap" id="env">
-            <string name="filename" value="env.json"/>
-            <float name="scale" value="1.0"/>
-        </emitter>
+    ~~~xml
+    <emitter type="sgenvmap" id="env">
+        <string name="filename" value="env.json"/>
+        <float name="scale" value="1.0"/>
+    </emitter>
+    ~~~
 
-        <emitter type="sgenvmap" id="env">
-            <string name="axis" value="0 0 1, 0.6 0 0.8"/>
-            <string name="sharpness" value="2, 300"/>
-            <string name="amplitude" value="0.5 0.5 0.6, 20 18 15"/>
-        </emitter>
+    or with inline lobes:
+
+    ~~~xml
+    <emitter type="sgenvmap" id="env">
+        <string name="axis" value="0 0 1, 0.6 0 0.8"/>
+        <string name="sharpness" value="2, 300"/>
+        <string name="amplitude" value="0.5 0.5 0.6, 20 18 15"/>
+    </emitter>
+    ~~~
 
     ``mi.load_dict``::
 

@@ -1,7 +1,8 @@
 """The ``svbrdf`` BSDF: the project's one BRDF (:mod:`ebr_mitsuba.brdf`) as a Mitsuba plugin.
 
-Registered by :func:`ebr_mitsuba.ensure_variant`; the class derives from the variant's ``mi.BSDF``,
-so this module is imported (and re-imported) only after a variant is set.
+Registered by :func:`ebr_mitsuba.ensure_variant`, or by ``import ebr_mitsuba`` after
+``mi.set_variant``; the class derives from the variant's ``mi.BSDF``, so this module is imported
+(and re-imported) only after a variant is set.
 """
 
 from __future__ import annotations
@@ -72,21 +73,40 @@ class SVBRDFBSDF(mi.BSDF):
     Differentiable parameters (``mi.traverse``) are the textures' own (e.g. ``diffuse.data`` of a
     bitmap, ``roughness.value`` of a constant).
 
-    XML::
+    XML (each example is loaded by ``tests/test_docs_xml.py``), with map files (each a
+    ``texture`` element of type ``bitmap``; Mitsuba 3 has no shorthand element for it):
 
-        <bsdf type="svbrdf" id="material">
-            <bitmap name="normal" filename="normal.exr" raw="true"/>
-            <bitmap name="diffuse" filename="diffuse.exr" raw="true"/>
-            <bitmap name="specular" filename="specular.exr" raw="true"/>
-            <bitmap name="roughness" filename="roughness.exr" raw="true"/>
-        </bsdf>
+    ~~~xml
+    <bsdf type="svbrdf" id="material">
+        <texture type="bitmap" name="normal">
+            <string name="filename" value="normal.exr"/>
+            <boolean name="raw" value="true"/>
+        </texture>
+        <texture type="bitmap" name="diffuse">
+            <string name="filename" value="diffuse.exr"/>
+            <boolean name="raw" value="true"/>
+        </texture>
+        <texture type="bitmap" name="specular">
+            <string name="filename" value="specular.exr"/>
+            <boolean name="raw" value="true"/>
+        </texture>
+        <texture type="bitmap" name="roughness">
+            <string name="filename" value="roughness.exr"/>
+            <boolean name="raw" value="true"/>
+        </texture>
+    </bsdf>
+    ~~~
 
-        <bsdf type="svbrdf">
-            <rgb name="diffuse" value="0.1"/>
-            <float name="specular" value="0.2"/>
-            <float name="roughness" value="0.3"/>
-            <string name="fresnel" value="none"/>
-        </bsdf>
+    or with constant values:
+
+    ~~~xml
+    <bsdf type="svbrdf">
+        <rgb name="diffuse" value="0.1"/>
+        <float name="specular" value="0.2"/>
+        <float name="roughness" value="0.3"/>
+        <string name="fresnel" value="none"/>
+    </bsdf>
+    ~~~
 
     ``mi.load_dict``: ``{"type": "svbrdf", "normal": {"type": "bitmap", "data":
     mi.TensorXf(n_hw3), "raw": True}, "roughness": 0.3}``. Note that a bitmap's row 0 is v = 0

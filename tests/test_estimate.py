@@ -284,9 +284,10 @@ def test_shift_and_highlight_estimates():
     from ebr_mitsuba.estimate.inputs import estimate_shift, highlight_position
 
     imgs = _render(_material(64), [near_shot(True), near_shot(False)])
-    dy, dx, prom = estimate_shift(imgs["flash"], np.roll(imgs["noflash"], (5, -2), axis=(0, 1)))
-    assert (dy, dx) == (5.0, -2.0) and prom > 5
-    assert estimate_shift(imgs["flash"], imgs["noflash"])[:2] == (0.0, 0.0)
+    est = estimate_shift(imgs["flash"], np.roll(imgs["noflash"], (5, -2), axis=(0, 1)))
+    assert (est.dy, est.dx) == (5.0, -2.0) and est.prominence > 5 and est.confident
+    est = estimate_shift(imgs["flash"], imgs["noflash"])
+    assert (est.dy, est.dx) == (0.0, 0.0) and est.confident
     x, y = highlight_position(imgs["flash"] - imgs["noflash"])["position"]
     assert np.hypot(x, y) < 0.1  # co-located flash, fronto-parallel: the lobe is centred
     # An off-centre light (flash to the right): the peak moves right.
@@ -714,3 +715,148 @@ def test_merge_detail_keeps_global_low_frequencies_and_tile_detail(rng):
     hot = SVBRDF(down.normal, np.minimum(down.diffuse + 0.9, 1), down.specular, down.roughness)
     assert merge_detail(hot, tiled).diffuse.max() <= 1
     np.testing.assert_allclose(upsample_bilinear(np.full((4, 4, 3), 0.7), (16, 16)), 0.7)
+
+
+# -- issue 16: exposure hint, --no-tile refinement, alignment confidence ----------------------------
+
+
+def test_unequal_exposure_without_exif_suggests_exposure_ratio(tmp_path):
+    """Two PNGs without EXIF, the no-flash one exposed 6× longer: the refusal names
+    --exposure-ratio (and the ratio needed); with it the pair loads."""
+    from ebr_mitsuba.estimate.inputs import load_inputs
+
+    imgs = _render(_material(GRID), [near_shot(True), near_shot(False)])
+    scale = 0.8 / float(imgs["flash"].max())
+    ratio = 6.0
+    assert imgs["noflash"].mean() * ratio > imgs["flash"].mean()  # the no-flash PNG is the brighter
+    write_png(tmp_path / "f.png", imgs["flash"] * scale)
+    write_png(tmp_path / "nf.png", np.clip(imgs["noflash"] * scale * ratio, 0, 0.9))
+    hint = r"swapped.*--exposure-ratio R \(no-flash exposure ÷ flash exposure; here R > "
+    with pytest.raises(InputError, match=hint):
+        load_inputs(tmp_path / "f.png", tmp_path / "nf.png")
+    inp = load_inputs(tmp_path / "f.png", tmp_path / "nf.png", exposure_ratio=ratio)
+    assert inp.exposure["noflash"] == {"factor": 1 / ratio, "source": "--exposure-ratio"}
+    # With an explicit ratio (or EXIF) the hint is not repeated: the shots are then really swapped.
+    with pytest.raises(InputError, match="swapped") as exc:
+        load_inputs(tmp_path / "f.png", tmp_path / "nf.png", exposure_ratio=1.0)
+    assert "--exposure-ratio" not in str(exc.value)
+
+
+def test_no_tile_refinement_above_the_grid(tmp_path, capsys, fake_net):
+    """--no-tile --refine-steps N on an input above the model grid: the saturation mask is
+    resampled as a 2-D mask (it became (64,) and every refinement failed)."""
+    from ebr_mitsuba.estimate.inputs import load_inputs
+
+    paths = _write_capture(tmp_path, n=64)
+    inp = load_inputs(paths["flash"], paths["noflash"])
+    assert inp.resampled((GRID, GRID)).saturated.shape == (GRID, GRID)
+    out = tmp_path / "est"
+    code, stdout, err = _estimate(
+        ["--flash", paths["flash"], "--noflash", paths["noflash"], "--out", out, "--no-tile",
+         "--refine-steps", "2", "--flash-intensity", "10", "--json"], capsys)
+    assert code == 0, err
+    summary = json.loads(stdout)
+    assert summary["resolution"] == GRID and summary["refine"]["steps"] == 2
+
+
+def test_refinement_shape_error_names_every_shape():
+    from ebr_mitsuba.estimate.refine import RefineConfig, ShotTarget, refine
+
+    maps = _material(8)
+    bad = ShotTarget(near_shot(True), np.zeros((8, 8, 3), np.float32), np.ones(8, bool))
+    with pytest.raises(InputError, match=r"image \(8, 8\), mask \(8,\); the maps are \(8, 8\)"):
+        refine(maps, ENV, [bad], RefineConfig(steps=1))
+
+
+def test_alignment_refuses_only_confident_shifts(tmp_path):
+    """`ebr capture` shots are aligned by construction: dark, noisy captures of a bare plate and
+    of copper (64², 16 spp; the old check refused every one of these as shifted by 3–8 px) load,
+    at most with a warning that alignment could not be verified. A genuinely shifted textured
+    capture is still refused."""
+    from ebr_mitsuba.capture import capture
+    from ebr_mitsuba.estimate.inputs import load_inputs
+    from ebr_mitsuba.imageio import read_exr
+
+    plate = SVBRDF.uniform(64, 64, diffuse=0.5, specular=0.04, roughness=0.1)
+    copper = SVBRDF.uniform(64, 64, diffuse=0.0, specular=(0.955, 0.638, 0.538), roughness=0.25)
+    cases = [
+        (plate, "procedural:1", 1.0, 0), (plate, "procedural:1", 1.0, 1), (copper, "procedural:1", 1.0, 1),
+        (plate, "procedural:2", 0.1, 1), (plate, "procedural:3", 1.0, 0),
+    ]
+    for k, (material, env, scale, seed) in enumerate(cases):
+        cap = tmp_path / f"dark{k}"
+        capture(material, env, "near", cap, spp=16, res=64, seed=seed, env_scale=scale, progress=False)
+        inp = load_inputs(cap / "flash.exr", cap / "noflash.exr")  # no refusal
+        est = inp.alignment["near"]
+        assert not est["confident"] and est["peak_ratio"] < 2.0, (k, est)
+        assert any("alignment could not be verified" in w for w in inp.warnings), (k, inp.warnings)
+    # Dark and noisy: a textured sample under a dim environment with sensor-like noise.
+    imgs = _render(_material(64), [near_shot(True), near_shot(False)])
+    rng = np.random.default_rng(5)
+    dark = imgs["noflash"] * 0.05
+    noisy = np.maximum(dark + rng.normal(0.0, 2.0 * float(dark.mean()), dark.shape), 0).astype(np.float32)
+    write_exr(tmp_path / "f.exr", imgs["flash"])
+    write_exr(tmp_path / "dark.exr", noisy)
+    inp = load_inputs(tmp_path / "f.exr", tmp_path / "dark.exr")
+    assert inp.alignment["near"]["texture_to_noise"][1] < inp.alignment["near"]["texture_to_noise"][0]
+    # A genuine shift of a textured capture: confident, refused.
+    cap = tmp_path / "textured"
+    capture(_material(64), "procedural:1", "near", cap, spp=16, res=64, seed=0, progress=False)
+    write_exr(tmp_path / "shifted.exr", np.roll(read_exr(cap / "noflash.exr"), (4, -3), axis=(0, 1)))
+    with pytest.raises(InputError, match=r"shifted by \(-3, \+4\) pixels .*peak ratio"):
+        load_inputs(cap / "flash.exr", tmp_path / "shifted.exr")
+    assert load_inputs(cap / "flash.exr", cap / "noflash.exr").alignment["near"]["confident"]
+
+
+def test_refinement_keeps_the_best_iterate():
+    """A diverging refinement (learning rate 30) returns the maps it started from and says the loss
+    rose; an oscillating one (lr 0.3, no decay) returns its best iterate, the one a shorter run
+    ends on; a converging one keeps its last step."""
+    from ebr_mitsuba.estimate.refine import RefineConfig, ShotTarget, refine
+
+    n = 16
+    truth = _material(n)
+    shots = [near_shot(True), near_shot(False)]
+    photos = _render(truth, shots)
+    targets = [ShotTarget(s, photos[s.name], np.ones((n, n), bool)) for s in shots]
+    start = SVBRDF(normal=truth.normal, diffuse=np.clip(truth.diffuse * 0.6 + 0.1, 0, 1),
+                   specular=np.full((n, n, 3), 0.2, np.float32), roughness=np.full((n, n), 0.7, np.float32))
+
+    wild = refine(start, ENV, targets, RefineConfig(steps=10, lr=30.0, normal_lr=3.0, log_every=5))
+    assert [s for s, _ in wild.history] == [0, 5, 10] and wild.history[-1][1] > wild.history[0][1]
+    assert wild.kept_step == 0 and wild.loss_rose
+    assert wild.loss_note() == (f"loss rose from {wild.history[0][1]:.4g} to {wild.history[-1][1]:.4g}; "
+                                f"kept step 0")
+    for name in ("diffuse", "specular", "roughness", "normal"):
+        np.testing.assert_allclose(getattr(wild.maps, name), getattr(start, name), atol=1e-5)
+    assert wild.after["mean"]["rmse"] == pytest.approx(wild.before["mean"]["rmse"], rel=1e-5)
+
+    cfg = dict(lr=0.3, normal_lr=0.03, log_every=2, final_lr_fraction=1.0)
+    wobbly = refine(start, ENV, targets, RefineConfig(steps=8, **cfg))
+    losses = dict(wobbly.history)
+    assert wobbly.kept_step == min(losses, key=losses.get) and 0 < wobbly.kept_step < 8
+    assert wobbly.loss_rose and f"kept step {wobbly.kept_step}" in wobbly.loss_note()
+    short = refine(start, ENV, targets, RefineConfig(steps=wobbly.kept_step, **cfg))
+    np.testing.assert_allclose(wobbly.maps.diffuse, short.maps.diffuse, atol=1e-6)
+
+    good = refine(start, ENV, targets, RefineConfig(steps=10, log_every=5))
+    assert good.kept_step == 10 and not good.loss_rose and good.loss_note() is None
+
+
+def test_diverging_refinement_is_reported(tmp_path, capsys, fake_net):
+    """`ebr estimate --refine-lr 50`: the summary line and report.html say the loss rose and which
+    step was kept; the maps written are the network's."""
+    from ebr_mitsuba.imageio import read_exr
+
+    paths = _write_capture(tmp_path)
+    out = tmp_path / "est"
+    args = ["--flash", paths["flash"], "--noflash", paths["noflash"], "--out", out, "--refine-steps", "10",
+            "--refine-lr", "50", "--flash-intensity", "10"]
+    code, _, err = _estimate(args, capsys)
+    assert code == 0, err
+    assert "loss rose from" in err and "kept step 0" in err
+    summary = json.loads((out / "estimate.json").read_text())
+    assert summary["refine"]["loss_rose"] and summary["refine"]["kept_step"] == 0
+    assert "loss rose from" in (out / "report.html").read_text()
+    np.testing.assert_allclose(read_exr(out / "maps" / "diffuse.exr"),
+                               read_exr(out / "maps_network" / "diffuse.exr"), atol=1e-5)

@@ -556,3 +556,48 @@ def test_prb_gradients_through_symbolic_lobe_loop():
     euler = float(np.dot(params["env.amplitude"].numpy(), grads["env.amplitude"]))
     np.testing.assert_allclose(euler, grads["env.scale"][0], rtol=1e-4)
     np.testing.assert_allclose(grads["env.scale"][0], float(mean.array[0]), rtol=0.05)
+
+
+# -- registration ---------------------------------------------------------------------------------
+_IMPORT_AFTER_VARIANT = r"""
+import sys
+import mitsuba as mi
+mi.set_variant(sys.argv[1])
+import ebr_mitsuba  # registers the plugins for the variant already set
+em = mi.load_string('<emitter version="3.0.0" type="sgenvmap"><string name="axis" value="0 0 1"/>'
+                    '<string name="sharpness" value="2"/><string name="amplitude" value="1 1 1"/></emitter>')
+bsdf = mi.load_file(sys.argv[2])
+print(type(em).__name__, type(bsdf).__name__)
+"""
+
+_IMPORT_BEFORE_VARIANT = r"""
+import sys
+import ebr_mitsuba
+assert "mitsuba" not in sys.modules, "import ebr_mitsuba imported Mitsuba"
+scene = ebr_mitsuba.load_scene(sys.argv[2])
+import mitsuba as mi
+print(mi.variant(), type(scene).__name__)
+"""
+
+
+@pytest.mark.parametrize("script, expected", [(_IMPORT_AFTER_VARIANT, "SGEnvMap SVBRDFBSDF"),
+                                              (_IMPORT_BEFORE_VARIANT, "Scene")],
+                         ids=["set_variant_then_import", "import_then_load_scene"])
+def test_plugins_register_whatever_the_import_order(tmp_path, variant, script, expected):
+    """``mi.set_variant(...); import ebr_mitsuba`` registers both plugins for ``mi.load_file``;
+    ``import ebr_mitsuba`` first imports no Mitsuba, and ``ebr_mitsuba.load_scene`` sets the
+    variant and registers them (fresh interpreters: this one has them registered already)."""
+    import subprocess
+    import sys
+
+    if script is _IMPORT_AFTER_VARIANT:
+        xml = '<bsdf version="3.0.0" type="svbrdf"><float name="roughness" value="0.3"/></bsdf>'
+    else:
+        xml = ('<scene version="3.0.0"><emitter type="sgenvmap"><string name="axis" value="0 0 1"/>'
+               '<string name="sharpness" value="2"/><string name="amplitude" value="1 1 1"/></emitter>'
+               '<shape type="rectangle"><bsdf type="svbrdf"/></shape></scene>')
+    (tmp_path / "x.xml").write_text(xml)
+    proc = subprocess.run([sys.executable, "-c", script, variant, str(tmp_path / "x.xml")],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.split()[-len(expected.split()):] == expected.split(), proc.stdout

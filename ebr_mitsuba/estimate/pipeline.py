@@ -292,6 +292,8 @@ def run_estimate(
         refined = refine(maps, env, targets, cfg.refine, progress, before=net_errors)
         if pbar is not None:
             pbar.close()
+        if refined.loss_rose:
+            log(f"warning: refinement {refined.loss_note()}")
         final_maps, final_env = refined.maps, refined.env
         final_errors, final_renders = refined.after, refined.renders
         stage("refine", t0)
@@ -316,6 +318,9 @@ def run_estimate(
             "lobes": cfg.refine.lobes,
             "seconds": round(refined.seconds, 3),
             "history": [[s, round(v, 6)] for s, v in refined.history],
+            "kept_step": refined.kept_step,
+            "loss_rose": refined.loss_rose,
+            "note": refined.loss_note(),
         },
         "prediction_timings": {
             k: float(v)

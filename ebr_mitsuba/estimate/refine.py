@@ -22,6 +22,13 @@ about 7° on the demo capture whatever the prior weight. On the demo capture (``
 steps) the defaults lower the re-render RMSE from 0.053 to 0.012 and the mean per-map RMSE from
 0.037 to 0.027; the report shows both numbers for every run.
 
+Best iterate. E is read (a host sync) at step 0, every ``log_every`` steps and after the last
+update; the parameters of the lowest E read are returned (``RefineResult.kept_step``; at step 0
+the input maps and lobes unchanged), so a refinement never returns a higher loss than it started
+from. ``RefineResult.loss_rose`` / :meth:`RefineResult.loss_note` ("loss rose from X to Y; kept
+step K") tell when the last E read is above the kept one; the estimate's summary and report
+print that note.
+
 Parametrisation (unconstrained, so every step stays a valid SVBRDF): diffuse, specular and
 roughness through a sigmoid of a logit (initial values clamped to [1e-3, 1 − 1e-3]); the normal
 as n = normalize(p_x, p_y, 1) of a free 2-vector p (always n_z > 0). Lobes (``lobes=True``, only
@@ -42,7 +49,8 @@ option             type     default    meaning
 ``log_weight``     float    0.1        w_log
 ``mode``           str      ``sg``     environment term of the renderer (``sg`` | ``quadrature``)
 ``spp``            int      16         quadrature directions per pixel (``mode="quadrature"``)
-``log_every``      int      10         loss read back (host sync) every so many steps
+``log_every``      int      10         loss read back (host sync) every so many steps; the best
+                                       iterate is chosen among these reads
 =================  =======  =========  ===============================================================
 """
 
@@ -117,6 +125,19 @@ class RefineResult:
     seconds: float
     history: list[tuple[int, float]] = field(default_factory=list)
     renders: dict[str, np.ndarray] = field(default_factory=dict)  # the re-renders behind ``after``
+    kept_step: int = 0  # the iterate returned: the one of lowest loss in ``history``
+
+    @property
+    def loss_rose(self) -> bool:
+        """Whether the last loss read is above the kept (lowest) one: the run diverged or
+        oscillated after ``kept_step``."""
+        return bool(self.history) and self.history[-1][0] != self.kept_step
+
+    def loss_note(self) -> str | None:
+        """``"loss rose from X to Y; kept step K"`` when :attr:`loss_rose`, else None."""
+        if not self.loss_rose:
+            return None
+        return loss_note(self.history, self.kept_step)
 
     def to_json(self) -> dict:
         return {
@@ -124,7 +145,16 @@ class RefineResult:
             "before": self.before,
             "after": self.after,
             "history": [[s, round(v, 6)] for s, v in self.history],
+            "kept_step": self.kept_step,
+            "loss_rose": self.loss_rose,
         }
+
+
+def loss_note(history, kept_step: int) -> str:
+    """The one-line note of a refinement whose loss rose after ``kept_step`` (report and CLI)."""
+    best = dict((int(s), float(v)) for s, v in history)[int(kept_step)]
+    last = float(history[-1][1])
+    return f"loss rose from {best:.4g} to {last:.4g}; kept step {kept_step}"
 
 
 # -- rendering and errors (numpy in, numpy out) ---------------------------------------------------------
@@ -273,7 +303,11 @@ def refine(
         raise InputError("refinement needs at least one shot")
     for t in targets:
         if t.image.shape[:2] != maps.shape or t.mask.shape != maps.shape:
-            raise InputError(f"refinement: shot {t.shot.name} is {t.image.shape[:2]}, the maps {maps.shape}")
+            raise InputError(
+                f"refinement: shot {t.shot.name} has image {tuple(t.image.shape[:2])}, mask "
+                f"{tuple(t.mask.shape)}; the maps are {maps.shape}: give the shot and its mask at "
+                f"the maps' size"
+            )
     opts = render_options(config.mode, config.spp)
     if before is None:
         before, _ = rerender_errors(maps, env, targets, config.mode, config.spp)
@@ -320,12 +354,8 @@ def refine(
             base_lr[k] = config.lobe_lr
     history = []
     h, w = maps.shape
-    for step in range(config.steps):
-        # Adam's steps stay near lr even at the optimum (sign-like updates on noisy gradients):
-        # decaying the rates lets per-pixel maps settle instead of dithering around it.
-        frac = 1.0 - (1.0 - config.final_lr_fraction) * step / max(config.steps - 1, 1)
-        opt.set_learning_rate({k: v * frac for k, v in base_lr.items()})
-        p = {k: opt[k] for k in params.values}
+
+    def objective(p):
         dm = params.maps(p)
         lobes = params.lobes_of(p)
         loss = mi.Float(0.0)
@@ -352,27 +382,50 @@ def refine(
                     dr.ravel(dr.abs(cur[:, 1:] - cur[:, :-1]))
                 )
                 loss += config.smooth_weight * tv
+        return loss
+
+    # The loss of the iterate after ``step`` updates is read at step 0, every ``log_every`` steps
+    # and after the last update; the best iterate read is kept (a diverging run returns the
+    # maps it started from rather than worse ones).
+    best_loss, best_step, best_params = math.inf, 0, None
+    for step in range(config.steps + 1):
+        p = {k: opt[k] for k in params.values}
+        loss = objective(p)
+        read = step == 0 or step % config.log_every == 0 or step == config.steps
+        if read:
+            value = float(loss[0])  # host sync: only every log_every steps
+            history.append((step, value))
+            if math.isfinite(value) and value < best_loss:
+                best_loss, best_step = value, step
+                best_params = {k: dr.detach(v) for k, v in p.items()}
+                dr.eval(best_params)
+            if progress is not None and step > 0:
+                progress(step, config.steps, value)
+        if step == config.steps:
+            break
+        # Adam's steps stay near lr even at the optimum (sign-like updates on noisy gradients):
+        # decaying the rates lets per-pixel maps settle instead of dithering around it.
+        frac = 1.0 - (1.0 - config.final_lr_fraction) * step / max(config.steps - 1, 1)
+        opt.set_learning_rate({k: v * frac for k, v in base_lr.items()})
         dr.backward(loss)
         opt.step()
-        if (step + 1) % config.log_every == 0 or step + 1 == config.steps:
-            value = float(loss[0])  # host sync: only every log_every steps
-            history.append((step + 1, value))
-            if progress is not None:
-                progress(step + 1, config.steps, value)
 
     with dr.suspend_grad():
-        p = {k: opt[k] for k in params.values}
-        dm = params.maps(p)
-        out_maps = SVBRDF(
-            normal=dm.normal.numpy(),
-            diffuse=dm.diffuse.numpy(),
-            specular=dm.specular.numpy(),
-            roughness=dm.roughness.numpy(),
-            source="refined",
-        )
-        out_env = params.lobes_of(p).to_env() if params.lobes else env
+        if best_params is None or best_step == 0:  # nothing better than the start: return it as given
+            out_maps, out_env, best_step = maps, env, 0
+        else:
+            dm = params.maps(best_params)
+            out_maps = SVBRDF(
+                normal=dm.normal.numpy(),
+                diffuse=dm.diffuse.numpy(),
+                specular=dm.specular.numpy(),
+                roughness=dm.roughness.numpy(),
+                source="refined",
+            )
+            out_env = params.lobes_of(best_params).to_env() if params.lobes else env
     after, renders = rerender_errors(out_maps, out_env, targets, config.mode, config.spp)
-    return RefineResult(out_maps, out_env, before, after, time.perf_counter() - t0, history, renders)
+    return RefineResult(out_maps, out_env, before, after, time.perf_counter() - t0, history, renders,
+                        kept_step=best_step)
 
 
 __all__ = [

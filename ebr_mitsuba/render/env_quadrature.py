@@ -11,7 +11,9 @@ the balance heuristic between
   ``sg_integral``·luminance energy, weighted by how much of it is above the horizon, so lobes
   under the plane are never picked), then :func:`ebr_mitsuba.sg.vmf_sample`; density
   ``p_l = Σ_k π_k vmf_pdf_k`` (written ``π_k G_k/∫G_k`` with unit amplitude, so L and p_l share one
-  exponential per lobe). When no lobe lights the plane, ``π_k = 1/K``.
+  exponential per lobe). When no lobe lights the plane (largest energy below the smallest normal
+  float32), ``π_k = 1/K``. The energies are divided by their detached maximum before they are
+  normalised, so tiny amplitudes (1e-38 … 1e-19) give finite π and finite gradients.
 
 The pattern is deterministic: sample i of a strategy uses the 3-D Kronecker (R₃, generalised
 golden ratio) point ``frac(o + i·a)``, Cranley–Patterson-rotated per pixel by ``o`` = TEA hash
@@ -47,6 +49,7 @@ from .points import ShadingPoints
 _G3 = 1.2207440846057596
 _R3 = tuple(int(round((1.0 / _G3 ** (d + 1)) % 1.0 * 2.0**32)) & 0xFFFFFFFF for d in range(3))
 _ONE_MINUS = 1.0 - 2.0**-24
+_TINY = 1.1754944e-38  # smallest normal float32
 BRDF, LOBE = 0, 1
 
 
@@ -78,8 +81,14 @@ class _LobeTables:
         up = mi.Vector3f(0.0, 0.0, 1.0)
         energy = luminance(lobes.amplitude) * sg_irradiance(self.axis, lobes.sharpness, 1.0, up, 8)
         energy = dr.maximum(dr.select(dr.isfinite(energy), energy, 0.0), 0.0)
-        total = dr.sum(energy)
-        self.pmf = dr.select(total > 0.0, energy / dr.select(total > 0.0, total, 1.0), 1.0 / self.k)
+        # π = energy/Σenergy is scale-free: divide by the (detached) largest energy first, so the
+        # sum lies in [1, K] and neither the value nor its derivative (1/Σ − e/Σ²: Σ² underflows
+        # for amplitudes below ~1e-19) leaves float32. Below the smallest normal float (1.2e-38)
+        # no lobe lights the plane: π = 1/K, constant.
+        peak = dr.detach(dr.max(energy))
+        lit = peak >= _TINY
+        scaled = energy * dr.select(lit, dr.rcp(dr.select(lit, peak, 1.0)), 0.0)
+        self.pmf = dr.select(lit, scaled / dr.select(lit, dr.sum(scaled), 1.0), 1.0 / self.k)
         # vmf_pdf = G/∫G for a unit-amplitude lobe: π_k/∫G_k per lobe, so that the loop shares one
         # exponential between L and p_l (λ clamped as in vmf_sample/vmf_pdf).
         self.pdf_scale = self.pmf / sg_integral(dr.maximum(lobes.sharpness, 1e-6), 1.0)
