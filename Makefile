@@ -12,7 +12,9 @@ bootstrap: $(STAMP)
 
 # Dr.Jit's LLVM backend needs LLVM >= 17 (the system's LLVM 15 fails with "Cannot select ... fminimum").
 llvm:
-	@if ls /usr/lib/*/libLLVM.so.19* /usr/lib/*/libLLVM-19.so* /usr/lib/*/libLLVM-1[7-9]*.so* /usr/lib/*/libLLVM.so.1[7-9]* /usr/lib/*/libLLVM.so.2* >/dev/null 2>&1 || [ -n "$$DRJIT_LIBLLVM_PATH" ]; then \
+	@if compgen -G '/usr/lib/*/libLLVM.so.19*' >/dev/null || compgen -G '/usr/lib/*/libLLVM-1[7-9]*.so*' >/dev/null \
+	   || compgen -G '/usr/lib/*/libLLVM.so.1[7-9]*' >/dev/null || compgen -G '/usr/lib/*/libLLVM.so.2*' >/dev/null \
+	   || [ -n "$$DRJIT_LIBLLVM_PATH" ]; then \
 	  true; \
 	elif command -v apt-get >/dev/null 2>&1 && [ "$$(id -u)" = 0 ]; then \
 	  echo "[bootstrap] installing libllvm19 (Dr.Jit's LLVM backend needs LLVM >= 17)" >&2; \

@@ -138,6 +138,10 @@ def equirect_solid_angles(height: int, width: int) -> np.ndarray:
 
 # -- maps -----------------------------------------------------------------------------------------
 
+# Negative texels down to this fraction of the mean radiance are compression noise, clipped at 0.
+NEGATIVE_TOLERANCE = 0.01
+
+
 @dataclass(frozen=True)
 class EquirectMap:
     """An equirectangular radiance map: ``data`` (H, W, 3) float32 linear RGB ≥ 0, W = 2H.
@@ -159,9 +163,15 @@ class EquirectMap:
                              f"(W = 2H, H >= 2): convert it to a latitude-longitude map")
         if not np.all(np.isfinite(d)):
             raise InputError(f"{src}: environment map has NaN or Inf texels; fix or regenerate it")
-        if float(d.min()) < 0:
-            raise InputError(f"{src}: environment map has negative radiance (min {float(d.min()):.4g}); "
-                             f"clip it at 0")
+        lo = float(d.min())
+        if lo < 0:
+            # Lossy EXR codecs (DWAB, half floats) leave a few texels slightly below zero: those
+            # within NEGATIVE_TOLERANCE of the map's mean radiance are clipped; larger ones refused.
+            mean = float(np.abs(d).mean())
+            if -lo > NEGATIVE_TOLERANCE * mean:
+                raise InputError(f"{src}: environment map has negative radiance (min {lo:.4g}, mean "
+                                 f"{mean:.4g}); clip it at 0")
+            d = np.maximum(d, 0.0)
         object.__setattr__(self, "data", np.ascontiguousarray(d))
 
     @property

@@ -107,12 +107,19 @@ def _check_range(values: np.ndarray, path, name: str, lo: float = 0.0, hi: float
                          f"[{lo:g}, {hi:g}]; clip or rescale the {name} map")
 
 
-def decode_normals(normal: np.ndarray, path, convention: str = "opengl", encoded: bool = False) -> np.ndarray:
+# Lowest z a repaired normal keeps (about 87° from the geometric normal).
+_MIN_REPAIRED_Z = 0.05
+
+
+def decode_normals(normal: np.ndarray, path, convention: str = "opengl", encoded: bool = False,
+                   repair: bool = False) -> np.ndarray:
     """Tangent-space normals (H, W, 3) → unit OpenGL normals, float32.
 
     ``encoded``: values are (n+1)/2 in [0, 1] (PNG/JPEG) and decode as 2v − 1. ``directx`` flips
     the green (y) component. Components outside [-1, 1], z < 0 or zero length raise an
-    :class:`InputError` naming ``path``; other non-unit normals are renormalised.
+    :class:`InputError` naming ``path``; other non-unit normals are renormalised. ``repair``
+    (for lossy JPEG texture sets, whose compression puts a few texels below the surface) raises
+    z to at least 0.05 instead of refusing.
     """
     _check_normal_convention(convention)
     n = np.asarray(normal, dtype=np.float32)
@@ -121,6 +128,9 @@ def decode_normals(normal: np.ndarray, path, convention: str = "opengl", encoded
     _check_range(n, path, "normal", -1.0, 1.0, tol=_NORMAL_TOL)
     if convention == "directx":
         n = n * np.array([1.0, -1.0, 1.0], np.float32)
+    if repair:
+        n = n.copy()
+        n[..., 2] = np.maximum(n[..., 2], _MIN_REPAIRED_Z)
     if float(n[..., 2].min()) < 0.0:
         count = int((n[..., 2] < 0).sum())
         raise InputError(f"{path}: {count} normals point into the surface (z < 0); give a "
@@ -310,13 +320,84 @@ def _find_textures(directory: Path) -> dict[str, Path]:
     return found
 
 
+TEXTURE_INDEX_FORMAT = "ebr-texture-sets/1"
+TEXTURE_INDEX = "index.json"
+
+
+def read_texture_index(path: str | os.PathLike) -> dict:
+    """The ``sets`` table of a texture-set index (``materials_extra/index.json``, format
+    ``ebr-texture-sets/1``): ``{name: {"class", "maps": {role: file}, "normal_convention",
+    "albedo_colorspace", "metalness_constant"?, ...}}``."""
+    file = Path(path)
+    try:
+        doc = json.loads(file.read_text())
+    except FileNotFoundError:
+        raise InputError(f"{file}: no such texture-set index") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{file}: malformed JSON ({getattr(exc, 'msg', exc)}); restore the file") from None
+    if not isinstance(doc, dict) or doc.get("format") != TEXTURE_INDEX_FORMAT or not isinstance(doc.get("sets"), dict):
+        raise InputError(f"{file}: not a texture-set index (expected {{\"format\": \"{TEXTURE_INDEX_FORMAT}\", "
+                         f"\"sets\": {{...}}}})")
+    return doc["sets"]
+
+
+def _indexed_entry(directory: Path) -> dict | None:
+    index = directory.parent / TEXTURE_INDEX
+    if not index.is_file():
+        return None
+    return read_texture_index(index).get(directory.name)
+
+
+def _load_indexed_set(directory: Path, entry: dict) -> SVBRDF:
+    """A set described by its index entry: the map roles name the files; metalness comes from the
+    ``metalness`` map, the ``arm`` map's B channel, ``metalness_constant``, or is 0 (the index's
+    note: sets of unknown metalness, e.g. rusty or painted metals, are treated as dielectric)."""
+    maps = entry.get("maps") or {}
+    where = f"{directory} ({TEXTURE_INDEX} entry)"
+    for role in ("albedo", "normal"):
+        if role not in maps:
+            raise InputError(f"{where}: no {role!r} map listed; fix the index")
+    if "roughness" not in maps and "arm" not in maps:
+        raise InputError(f"{where}: neither a 'roughness' nor an 'arm' map listed; fix the index")
+    colorspace = entry.get("albedo_colorspace", "srgb")
+    base = read_image(directory / maps["albedo"], colorspace)
+    if base.shape[2] == 1:  # a grey base colour saved as one channel
+        base = np.repeat(base, 3, axis=2)
+    base = base[..., :3]
+    shape = base.shape[:2]
+    nfile = directory / maps["normal"]
+    normal = decode_normals(read_image(nfile, "linear", expect_channels=3, expect_shape=shape), nfile,
+                            entry.get("normal_convention", "opengl"), encoded=True, repair=True)
+    arm = (read_image(directory / maps["arm"], "linear", expect_channels=3, expect_shape=shape)
+           if "arm" in maps else None)
+    if "roughness" in maps:
+        rough = read_image(directory / maps["roughness"], "linear", expect_shape=shape)[..., 0]
+    else:
+        rough = arm[..., 1]
+    if "metalness" in maps:
+        metal = read_image(directory / maps["metalness"], "linear", expect_shape=shape)[..., 0]
+    elif arm is not None:
+        metal = arm[..., 2]
+    else:
+        const = entry.get("metalness_constant")
+        metal = np.full(shape, float(const) if const is not None else 0.0, np.float32)
+    return from_metal_rough(base, metal, rough, normal, source=str(directory))
+
+
 def load_texture_set(path: str | os.PathLike, size: int | tuple[int, int] | None = None) -> SVBRDF:
     """Read a Poly Haven or ambientCG metallic/roughness texture set (module docstring) as an
-    :class:`SVBRDF`, optionally area-resampled to ``size`` (int: square, or (height, width))."""
+    :class:`SVBRDF`, optionally area-resampled to ``size`` (int: square, or (height, width)).
+
+    A set listed in an ``index.json`` beside it (:func:`read_texture_index`) is read as the index
+    says; other sets are recognised by their file names."""
     directory = Path(path)
     if not directory.is_dir():
         raise InputError(f"{directory}: no such texture-set directory")
     target = _parse_size(size)
+    entry = _indexed_entry(directory)
+    if entry is not None:
+        svbrdf = _load_indexed_set(directory, entry)
+        return svbrdf if target is None else resample_svbrdf(svbrdf, target)
     tex = _find_textures(directory)
     expected = ("expected Poly Haven *_diff_1k/*_nor_gl_1k/*_arm_1k or ambientCG "
                 "*_Color/*_Normal/*_Roughness[/*_Metalness] images")
@@ -346,8 +427,11 @@ def load_texture_set(path: str | os.PathLike, size: int | tuple[int, int] | None
 
 
 def is_material_dir(path: str | os.PathLike) -> bool:
-    """True when ``path`` holds a material directory (``material.json`` or ``normal.exr/.png``)."""
+    """True when ``path`` holds a material directory (``material.json`` or ``normal.exr/.png``)
+    and is not a texture set listed in an ``index.json`` beside it."""
     p = Path(path)
+    if _indexed_entry(p) is not None:
+        return False
     return (p / "material.json").is_file() or any((p / f"normal{s}").is_file()
                                                    for s in (".exr",) + _LDR_SUFFIXES)
 

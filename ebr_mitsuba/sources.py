@@ -101,6 +101,17 @@ def parse_material(spec: str) -> MaterialSource:
     return MaterialSource(spec, "directory", path=path)
 
 
+def center_square(svbrdf: SVBRDF) -> SVBRDF:
+    """The largest centred square crop of ``svbrdf`` (itself when already square)."""
+    h, w = svbrdf.shape
+    if h == w:
+        return svbrdf
+    k = min(h, w)
+    i, j = (h - k) // 2, (w - k) // 2
+    crop = [a[i:i + k, j:j + k] for a in (svbrdf.normal, svbrdf.diffuse, svbrdf.specular, svbrdf.roughness)]
+    return SVBRDF(*crop, source=f"{svbrdf.source}+crop{k}")
+
+
 def fit_to_resolution(svbrdf: SVBRDF, size: int, source: str = "material") -> SVBRDF:
     """``svbrdf`` area-resampled to ``size``×``size``
     (:func:`ebr_mitsuba.materials.resample_svbrdf`); non-square maps are an InputError."""

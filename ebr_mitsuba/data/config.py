@@ -62,7 +62,8 @@ order: × exposure × white-balance gains → + noise → clip to [0, 1] → 8-b
   :data:`ebr_mitsuba.procedural.FAMILIES`, default all), ``augment`` (bool, true), ``blend``
   (probability of blending with a second material of the source, 0.3), ``weight`` (1.0).
 * ``type = "directory"`` (:class:`DirectoryMaterials`): ``paths`` (*required*, material directories or
-  Poly Haven / ambientCG texture sets), ``augment``, ``blend``, ``weight``.
+  Poly Haven / ambientCG texture sets, sets listed in a ``materials_extra/index.json`` included),
+  ``augment``, ``blend``, ``weight``, ``split`` (below).
 
 ``[[environments]]`` (at least one; *required* ``type``):
 
@@ -72,7 +73,7 @@ order: × exposure × white-balance gains → + noise → clip to [0, 1] → 8-b
 * ``type = "equirect"`` (:class:`EquirectEnvironments`): ``paths`` (*required*, ``.hdr``/``.exr``),
   ``levels`` (scale each map so its irradiance on the sample is that level × the flash's; [] keeps
   the file's radiance), ``rotate`` (random rotation about z, true), ``lobes`` (SG ground-truth fit,
-  32), ``fit_iterations`` (400), ``weight``.
+  32), ``fit_iterations`` (400), ``weight``, ``split`` (below).
 * ``type = "sg"`` (:class:`SGEnvironments`): ``paths`` (*required*, ``env.json``), ``levels`` ([]),
   ``rotate`` (true), ``weight``.
 * ``type = "none"`` (:class:`NoEnvironment`): dark (the five-light setup needs no environment),
@@ -80,6 +81,13 @@ order: × exposure × white-balance gains → + noise → clip to [0, 1] → 8-b
 
 Paths: ``~`` and ``$VAR``/``${VAR}`` are expanded (an unset variable is an error naming it), then
 relative paths are taken from the config file's directory. Files must exist when the config loads.
+A path with ``*``, ``?`` or ``[`` is a glob pattern standing for its sorted matches (directories
+for ``directory`` materials, files for ``equirect`` maps).
+
+``split`` (``directory`` materials and ``equirect`` maps; ``"all"`` by default) filters the paths by
+the fixed test split of the real assets (``scenes/test_split.toml``, :mod:`.split`): ``"train"``
+drops the test assets a pattern matched and refuses a test asset named outright; ``"test"`` keeps
+only test assets. Training configs use ``"train"``, evaluation configs ``"test"``.
 """
 
 from __future__ import annotations
@@ -102,6 +110,7 @@ from ..procedural import ENV_KINDS, INTENSITY_LEVELS
 from ..scene import INTEGRATORS
 
 RENDERERS = ("mitsuba", "fast")
+SPLITS = ("train", "test", "all")  # = .split.SPLITS
 FAST_MODES = ("sg", "quadrature")  # = ebr_mitsuba.render.inputs.MODES (not imported: no Dr.Jit here)
 LEVELS = tuple(INTENSITY_LEVELS)
 MIN_RES, MAX_RES = 8, 4096
@@ -175,9 +184,11 @@ class ProceduralMaterials:
 class DirectoryMaterials:
     type: str = _f("directory", "source type")
     weight: float = _f(1.0, "relative probability", positive=True)
-    paths: list[str] = _f([], "material directories or texture sets", path="dir", required=True)
+    paths: list[str] = _f([], "material directories or texture sets (glob patterns allowed)", path="dir",
+                          required=True)
     augment: bool = _f(True, "random augmentation")
     blend: float = _f(0.0, "probability of blending two materials", minimum=0.0, maximum=1.0)
+    split: str = _f("all", "keep the train or test assets of the fixed test split, or all", choices=SPLITS)
 
 
 @dataclass(frozen=True)
@@ -192,7 +203,9 @@ class ProceduralEnvironments:
 class EquirectEnvironments:
     type: str = _f("equirect", "source type")
     weight: float = _f(1.0, "relative probability", positive=True)
-    paths: list[str] = _f([], "equirectangular .hdr/.exr maps", path="file", required=True)
+    paths: list[str] = _f([], "equirectangular .hdr/.exr maps (glob patterns allowed)", path="file",
+                          required=True)
+    split: str = _f("all", "keep the train or test assets of the fixed test split, or all", choices=SPLITS)
     levels: list[str] = _f(list(LEVELS), "intensity levels ([]: as in the file)", choices=LEVELS)
     rotate: bool = _f(True, "random rotation about z")
     lobes: int = _f(32, "SG ground-truth lobes", minimum=1, maximum=512)
@@ -317,7 +330,25 @@ def _check_number(value, key: str, source: str) -> float:
 _VAR = re.compile(r"\$(\w+)|\$\{(\w+)\}")
 
 
-def _resolve_path(text: str, key: str, source: str, base: Path, kind: str) -> str:
+_GLOB_CHARS = re.compile(r"[*?\[]")
+
+
+def _resolve_paths(text: str, key: str, source: str, base: Path, kind: str) -> list[str]:
+    """One path, or every match (sorted) of a glob pattern (``materials_extra/*``)."""
+    if not _GLOB_CHARS.search(text):
+        return [_resolve_path(text, key, source, base, kind)]
+    pattern = _resolve_path(text, key, source, base, None)
+    import glob
+
+    want = {"dir": os.path.isdir, "file": os.path.isfile}.get(kind, os.path.exists)
+    found = sorted(p for p in glob.glob(pattern) if want(p))
+    if not found:
+        raise _err(source, key, f"pattern {pattern} matches no {'directory' if kind == 'dir' else 'file'}; "
+                                f"fix the pattern")
+    return found
+
+
+def _resolve_path(text: str, key: str, source: str, base: Path, kind: str | None) -> str:
     for match in _VAR.finditer(text):
         name = match.group(1) or match.group(2)
         if name not in os.environ:
@@ -395,7 +426,8 @@ def _convert(value, hint, meta: dict, key: str, source: str, base: Path):
                         raise _err(source, k, f"is {item!r}, not a procedural family; use one of "
                                               f"{', '.join(FAMILIES)}")
                 if meta.get("path"):
-                    item = _resolve_path(item, k, source, base, meta["path"])
+                    out.extend(_resolve_paths(item, k, source, base, meta["path"]))
+                    continue
                 out.append(item)
         return out
     raise TypeError(f"config schema: unsupported field type {hint!r} for {key}")  # pragma: no cover
@@ -418,7 +450,36 @@ def _parse_table(cls, table, key: str, source: str, base: Path):
             raise _err(source, f"{key}.{name}", "is required")
     if "paths" in fields and not values.get("paths"):
         raise _err(source, f"{key}.paths", "must list at least one path")
+    if "split" in fields and "paths" in values:
+        values["paths"] = _apply_split(table, values, key, source, base)
     return cls(**values)
+
+
+def _apply_split(table: dict, values: dict, key: str, source: str, base: Path) -> list[str]:
+    """Keep the paths of the split: ``train`` drops the fixed test assets (:mod:`.split`) that a
+    pattern matched and refuses one named outright; ``test`` keeps only test assets."""
+    from .split import load_split
+
+    split = values.get("split", "all")
+    if split == "all":
+        return values["paths"]
+    test = load_split()
+    explicit = set()
+    for i, text in enumerate(table.get("paths", [])):
+        if isinstance(text, str) and not _GLOB_CHARS.search(text):
+            explicit.add(_resolve_path(text, f"{key}.paths[{i}]", source, base, None))
+    kept = []
+    for path in values["paths"]:
+        in_test = test.is_test(path)
+        if split == "train" and in_test and path in explicit:
+            raise _err(source, f"{key}.paths", f"names {path}, which is in the fixed test split "
+                                               f"({test.source}); remove it, or set split = \"all\"")
+        if in_test == (split == "test"):
+            kept.append(path)
+    if not kept:
+        raise _err(source, f"{key}.paths", f"keeps no path of the {split!r} split; check the paths and "
+                                           f"EBR_DATA_DIR")
+    return kept
 
 
 def _parse_sources(items, key: str, types: dict, source: str, base: Path) -> tuple:

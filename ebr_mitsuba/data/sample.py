@@ -154,9 +154,10 @@ def _load_map(path: str):
 @functools.lru_cache(maxsize=32)
 def _load_material(path: str, size: int) -> SVBRDF:
     from ..materials import load_material
-    from ..sources import fit_to_resolution
+    from ..sources import center_square, fit_to_resolution
 
-    return fit_to_resolution(load_material(path), size, source=path)
+    # real sets keep the photo's aspect (1024×596, ...): their centred square is what is drawn
+    return fit_to_resolution(center_square(load_material(path)), size, source=path)
 
 
 @functools.lru_cache(maxsize=64)
