@@ -335,9 +335,10 @@ def read_texture_index(path: str | os.PathLike) -> dict:
         raise InputError(f"{file}: no such texture-set index") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise InputError(f"{file}: malformed JSON ({getattr(exc, 'msg', exc)}); restore the file") from None
-    if not isinstance(doc, dict) or doc.get("format") != TEXTURE_INDEX_FORMAT or not isinstance(doc.get("sets"), dict):
-        raise InputError(f"{file}: not a texture-set index (expected {{\"format\": \"{TEXTURE_INDEX_FORMAT}\", "
-                         f"\"sets\": {{...}}}})")
+    if (not isinstance(doc, dict) or doc.get("format") != TEXTURE_INDEX_FORMAT
+            or not isinstance(doc.get("sets"), dict)):
+        raise InputError(f"{file}: not a texture-set index (expected format "
+                         f"{TEXTURE_INDEX_FORMAT!r} and a 'sets' table)")
     return doc["sets"]
 
 

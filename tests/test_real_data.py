@@ -83,7 +83,8 @@ def test_indexed_texture_set_reads_roles_and_metalness(tmp_path):
 
 
 def test_indexed_set_missing_role_names_the_set(tmp_path):
-    d = _write_set(tmp_path, "broken", {"class": "wood", "maps": {"albedo": "albedo.png", "normal": "normal.png"}})
+    maps = {"albedo": "albedo.png", "normal": "normal.png"}
+    d = _write_set(tmp_path, "broken", {"class": "wood", "maps": maps})
     with pytest.raises(InputError, match="broken.*roughness"):
         load_texture_set(d)
 
@@ -131,8 +132,8 @@ def test_lossy_map_negatives_are_clipped_large_ones_refused():
 def test_indexed_set_with_material_dir_like_names_loads_as_a_texture_set(tmp_path):
     from ebr_mitsuba.materials import load_material
 
-    d = _write_set(tmp_path, "rock", {"class": "stone", "maps": {"albedo": "color.png", "normal": "normal.png",
-                                                                 "roughness": "rough.png"}})
+    maps = {"albedo": "color.png", "normal": "normal.png", "roughness": "rough.png"}
+    d = _write_set(tmp_path, "rock", {"class": "stone", "maps": maps})
     (d / "albedo.png").rename(d / "color.png")
     m = load_material(d, size=4)
     assert m.shape == (4, 4)

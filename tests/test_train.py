@@ -278,7 +278,7 @@ def test_ddp_two_cpu_processes(tiny, tmp_path):
     doc["stages"] = {"lighting": 2, "diffuse": 2, "specular": 0, "refinement": 0, "finetune": 0}
     cfg = tmp_path / "c.toml"
     cfg.write_text(_toml(doc))
-    env = dict(os.environ, OMP_NUM_THREADS="1")
+    env = dict(os.environ, OMP_NUM_THREADS="1", TQDM_DISABLE="1")
     ebr = shutil.which("ebr", path=str(Path(sys.executable).parent))
     cmd = [
         sys.executable,
@@ -298,6 +298,9 @@ def test_ddp_two_cpu_processes(tiny, tmp_path):
     assert proc.returncode == 0, proc.stderr[-2000:]
     summary = json.loads((tmp_path / "ddp" / "summary.json").read_text())
     assert summary["world_size"] == 2 and summary["phases"]["diffuse"]["steps"] == 2
+    # rank 0 alone prints (issue 16.15): each phase line and the final line once
+    for line in ("lighting: 2 steps", "diffuse: 2 steps", "wrote "):
+        assert proc.stderr.count(line) == 1, proc.stderr[-2000:]
 
 
 # -- inference and evaluation ----------------------------------------------------------------------

@@ -128,6 +128,7 @@ def test_stage2_training_path_matches_predict(tiny_nf, run_nf):
     i = 1
     with torch.no_grad():
         out = trainer._cascade("finetune", trainer.bundle.cascade, torch.tensor([i]))
+    trainer.close()  # releases the lock of run_nf (a Trainer that is not run keeps it)
     assert out.rendered_photos.shape == (1, 12, 32, 32)
     pred = predict(trainer.bundle, *_shots(GeneratedDataset(tiny_nf)[i]))
     train_maps = out.maps.to_svbrdf(0)

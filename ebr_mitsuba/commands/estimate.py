@@ -8,7 +8,8 @@ Inputs: EXR (linear) or PNG/JPEG (sRGB, 8/16 bit), all of one size, the sample f
 lighting is estimated. DIR receives maps/ (EXR + PNG), env.json with lat-long and hemisphere
 pictures of the SGs, re-renders of the shots and residuals, renders under novel lights,
 estimate.json and a self-contained report.html. DIR appears complete or not at all; an earlier
-estimate directory there is replaced, anything else is refused.
+estimate directory there is replaced, anything else is refused. One run per DIR: a second
+`ebr estimate` into a DIR in use is refused (exit 2) instead of replacing the first one's output.
 
 Options (defaults in brackets):
 
@@ -145,6 +146,7 @@ def check_flags(args) -> None:
 
 def run(args) -> int:
     from ..estimate.pipeline import EstimateConfig, run_estimate
+    from ..fsutil import output_lock
 
     check_flags(args)
     cfg = EstimateConfig(
@@ -164,7 +166,8 @@ def run(args) -> int:
         max_size=args.max_size,
         tile_overlap=args.tile_overlap,
     )
-    summary = run_estimate(cfg, log=say, bar=progress)
+    with output_lock(args.out, "ebr estimate"):  # one writer per --out: a second one is refused
+        summary = run_estimate(cfg, log=say, bar=progress)
     if args.json:
         emit_json(summary)
     else:
@@ -183,6 +186,8 @@ def print_summary(summary: dict) -> None:
             f" -> {ref['rmse']:.4g} (relative {ref['rel_rmse']:.3f}) after "
             f"{summary['refine']['steps']} refinement steps ({summary['refine']['seconds']:.1f} s)"
         )
+        if summary["refine"].get("note"):  # the loss rose: the best iterate was kept
+            line += f"; {summary['refine']['note']}"
     say(line)
     say(
         f"wrote {summary['out']} ({summary['resolution']}x{summary['resolution']}, "

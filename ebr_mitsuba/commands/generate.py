@@ -24,6 +24,10 @@ images, exemplars, ground-truth maps, env.json, sample.json, manifest.json).
                   "samples_per_second", "samples_per_second_per_worker", "partials_removed"}
 
 A progress bar (samples/s, ETA) is drawn on stderr; a summary line ends the run.
+
+One run per DIR: a second `ebr generate` into a DIR in use is refused (exit 2). Killed or
+stopped (SIGKILL, SIGTERM, Ctrl-C), the run takes its workers with it and keeps every complete
+sample; --resume finishes the set.
 """
 
 from __future__ import annotations
@@ -51,12 +55,15 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     from ..data.config import load_config
     from ..data.generate import generate
+    from ..fsutil import sigterm_as_exit
 
     config = load_config(args.config)
     if args.count is not None:
         config = config.with_count(args.count)
-    summary = generate(config, args.out, workers=args.workers, resume=args.resume, ray=args.ray,
-                       shard_size=args.shard_size, progress=True, say=say)
+    # SIGTERM stops the workers and removes half-written files
+    with sigterm_as_exit("ebr generate: terminated (SIGTERM); complete samples are kept: --resume finishes"):
+        summary = generate(config, args.out, workers=args.workers, resume=args.resume, ray=args.ray,
+                           shard_size=args.shard_size, progress=True, say=say)
     rate = summary.samples_per_second
     say(f"wrote {summary.out}: {summary.count} samples ({summary.generated} generated, {summary.skipped} "
         f"already there) in {summary.seconds:.1f} s, {rate:.3g} samples/s on {summary.workers} "

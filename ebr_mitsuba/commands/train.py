@@ -14,16 +14,21 @@ The config (schema: docs/train.md, defaults in ebr_mitsuba/train/config.py) name
   cache/         per-sample exemplar selections and extracted SGs (reused by --resume)
 
 Options:
-  --out DIR      output directory (must be new or empty unless --resume)
+  --out DIR      output directory (new, empty, or a run stopped before its first checkpoint,
+                 which starts over; a run with a checkpoint needs --resume)
   --resume       continue the run in DIR from last.pt (same config); a finished run only
-                 rewrites model.pt (and --export)
+                 rewrites model.pt (and --export); without a checkpoint yet, start over
   --export FILE  also write the deployable copy of model.pt (float16 weights, no optimizer
                  state): how ebr_mitsuba/models/ebrenv_small.pt is made
   --json         print summary.json on stdout
 
 Data-parallel: `torchrun --nproc_per_node N -m ebr_mitsuba.cli train CONFIG.toml --out DIR`
 (gloo on CPU, NCCL on CUDA; rank 0 writes). CUDA is used when present ([train].device = "auto").
-A progress bar with the loss and samples/s runs on stderr.
+A progress bar with the loss and samples/s runs on stderr (rank 0 only under torchrun).
+
+Reliability (docs/reliability.md): one run per DIR (a second is refused, exit 2); every sample
+is checked against its manifest before use (a damaged file is refused by name, exit 2); a kill
+at any point leaves DIR resumable; the same seed gives the same weights on one machine.
 """
 
 from __future__ import annotations
@@ -51,6 +56,7 @@ def add_arguments(parser) -> None:
 
 def run(args) -> int:
     from ..errors import InputError
+    from ..fsutil import sigterm_as_exit
     from ..train.checkpoint import export_model
     from ..train.config import load_config
     from ..train.ddp import shutdown
@@ -62,11 +68,14 @@ def run(args) -> int:
             f"--export {args.export}: its folder does not exist; create it or choose another path"
         )
     out = Path(args.out) if args.out else Path("runs") / Path(args.config).stem
-    trainer = Trainer(config, out, resume=args.resume, log=say, progress=progress)
-    try:
-        summary = trainer.run()
-    finally:
-        shutdown(trainer.dist)
+    # SIGTERM: the atomic checkpoint write in progress removes its temporary, the lock is released
+    with sigterm_as_exit("ebr train: terminated (SIGTERM); --resume continues from the last checkpoint"):
+        trainer = Trainer(config, out, resume=args.resume, log=say, progress=progress)
+        try:
+            summary = trainer.run()
+        finally:
+            trainer.close()
+            shutdown(trainer.dist)
     if trainer.dist.main:
         say(f"wrote {out / 'model.pt'} ({summary.get('seconds', 0):.0f} s, {summary.get('samples')} samples)")
         if args.export:

@@ -524,7 +524,7 @@ def bundled_configs() -> list[str]:
 
     root = importlib.resources.files("ebr_mitsuba.scenes")
     return sorted(p.name[:-5] for p in root.iterdir()
-                  if p.name.endswith(".toml") and p.name != "validation.toml")
+                  if p.name.endswith(".toml") and p.name not in ("validation.toml", "test_split.toml"))
 
 
 def resolve_config_path(spec: str | Path) -> Path:

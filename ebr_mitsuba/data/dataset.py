@@ -46,19 +46,32 @@ def _chw(images, size: tuple[int, int]) -> torch.Tensor:
 class GeneratedDataset(Dataset):
     """Samples of the data set at ``root`` as tensors (see the module docstring).
 
-    Needs ``dataset.json`` and ``index.json`` (a complete run); raises :class:`InputError` naming
-    the file otherwise. ``max_lobes``: K of the padded ``sg`` tensor (a sample with more lobes is an
-    error naming it).
+    Needs ``dataset.json`` and ``index.json`` of a complete run (an interrupted run or ``--count``
+    extension is refused); raises :class:`InputError` naming the file otherwise. ``max_lobes``: K
+    of the padded ``sg`` tensor (a sample with more lobes is an error naming it). ``check``: before
+    reading a sample, check its files against its manifest (sizes and SHA-256,
+    :func:`.store.check_sample`), so that a damaged file is refused by name instead of being used.
     """
 
-    def __init__(self, root: str | Path, max_lobes: int | None = None):
+    def __init__(self, root: str | Path, max_lobes: int | None = None, check: bool = True):
         self.root = Path(root)
-        for name in (store.DATASET_JSON, store.INDEX_JSON):
-            if not (self.root / name).is_file():
-                raise InputError(f"{self.root / name}: missing; generate the data set with 'ebr generate' "
-                                 f"(or finish it with --resume)")
-        self.dataset = store.read_json(self.root / store.DATASET_JSON)
-        self.index = store.read_json(self.root / store.INDEX_JSON)
+        self.check = check
+        finish = (f"generate the data set with 'ebr generate ... --out {self.root}' (or finish it with "
+                  f"--resume)")
+        self.dataset = store.read_doc(self.root / store.DATASET_JSON, store.DATASET_FORMAT, finish)
+        self.index = store.read_doc(self.root / store.INDEX_JSON, store.INDEX_FORMAT, finish)
+        wanted, have = self.dataset.get("count"), self.index.get("count")
+        entries = self.index.get("samples")
+        if not isinstance(entries, list) or have != len(entries):
+            raise InputError(f"{self.root / store.INDEX_JSON}: 'count' does not match its samples; "
+                             f"the file is damaged: {finish}")
+        if wanted != have:
+            raise InputError(f"{self.root}: dataset.json asks for {wanted} samples but index.json lists "
+                             f"{have} (an interrupted --count extension); finish it with 'ebr generate ... "
+                             f"--out {self.root} --count {wanted} --resume'")
+        if self.index.get("fingerprint") != self.dataset.get("fingerprint"):
+            raise InputError(f"{self.root / store.INDEX_JSON}: its fingerprint differs from dataset.json's; "
+                             f"the data set is damaged: {finish}")
         lay = self.dataset["layout"]
         self.shot_names = list(lay["photos"])
         self.flash_only_names = list(lay["flash_only"])
@@ -73,6 +86,8 @@ class GeneratedDataset(Dataset):
     def __getitem__(self, i: int) -> dict:
         if not 0 <= i < len(self):
             raise IndexError(f"sample {i} out of range [0, {len(self)})")
+        if self.check:
+            store.check_sample(self.root, self.dataset, i, self.index["samples"][i])
         s = store.load_sample(self.root, self.dataset, i)
         env = s["env"]
         if env.num_lobes > self.max_lobes:

@@ -31,7 +31,7 @@ import numpy as np
 
 from .. import __version__
 from ..errors import InputError
-from ..fsutil import atomic_write_text
+from ..fsutil import atomic_write_text, output_lock, remove_stale_temporaries
 from . import store
 from .camera import camera_units, photo_linear
 from .config import GenerateConfig
@@ -138,14 +138,54 @@ def make_sample(plan: Plan, index: int, root: Path) -> Path:
 # -- workers ---------------------------------------------------------------------------------------
 
 _WORKER: dict = {}
+PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+WATCHDOG_SECONDS = 1.0
 
 
-def init_worker(variant: str, plan: Plan, root: str) -> None:
-    """Per-process set-up of a worker: the variant, one Dr.Jit thread, the plan."""
+def die_with_parent(parent_pid: int, poll: float = WATCHDOG_SECONDS, use_prctl: bool = True) -> None:
+    """Make this (worker) process end when ``parent_pid`` does, however the parent ends (SIGKILL
+    included): on Linux the kernel sends SIGKILL at the parent's death (``prctl(PR_SET_PDEATHSIG)``);
+    everywhere a daemon thread checks every ``poll`` seconds that the parent is still the parent
+    and exits otherwise (the fallback, and the check for a parent that died before the
+    ``prctl``). Without this a pool's workers, and multiprocessing's resource tracker that waits for
+    them, outlive a killed ``ebr generate`` for as long as their current sample takes.
+    ``use_prctl=False`` leaves the watchdog alone (to test it)."""
+    import signal
+    import sys
+    import threading
+
+    if use_prctl and sys.platform.startswith("linux"):
+        import ctypes
+
+        try:
+            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
+        except (OSError, AttributeError):  # pragma: no cover - not glibc: the watchdog remains
+            pass
+    if os.getppid() != parent_pid:
+        os._exit(1)
+
+    def watch() -> None:
+        while True:
+            time.sleep(poll)
+            if os.getppid() != parent_pid:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="ebr-parent-watchdog", daemon=True).start()
+
+
+def init_worker(variant: str, plan: Plan, root: str, parent_pid: int | None = None) -> None:
+    """Per-process set-up of a worker: the variant, one Dr.Jit thread, the plan; a pool worker
+    (``parent_pid`` given) also dies with its parent (:func:`die_with_parent`) and leaves Ctrl-C
+    to it (the parent stops the pool)."""
+    import signal
+
     import drjit as dr
 
     from ..variant import ensure_variant
 
+    if parent_pid is not None:  # a pool worker (Ray manages its own workers)
+        die_with_parent(parent_pid)
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
     ensure_variant(variant)
     dr.set_thread_count(1)
     _WORKER.update(plan=plan, root=Path(root))
@@ -169,15 +209,50 @@ def _run_in_process(plan: Plan, root: Path, todo: list[int], tick) -> None:
         dr.set_thread_count(threads)
 
 
+def _stop_workers(timeout: float = 5.0) -> None:
+    """Terminate (then kill) this process's multiprocessing children: the pool's workers."""
+    import multiprocessing as mp
+
+    children = mp.active_children()
+    for p in children:
+        p.terminate()
+    deadline = time.monotonic() + timeout
+    for p in children:
+        p.join(max(0.0, deadline - time.monotonic()))
+        if p.is_alive():
+            p.kill()
+            p.join(1.0)
+
+
+def _quiet_broken_pool_report() -> None:
+    """Python 3.11's executor thread, seeing the workers we stop, tries to fail futures we have
+    already cancelled and dies with an ``InvalidStateError`` traceback on stderr (fixed in later
+    Pythons): the stop is ours and already reported in one line, so that report is dropped."""
+    import threading
+    from concurrent.futures import InvalidStateError
+
+    previous = threading.excepthook
+
+    def hook(args):
+        if args.exc_type is not None and issubclass(args.exc_type, InvalidStateError):
+            return
+        previous(args)
+
+    threading.excepthook = hook
+
+
 def _run_pool(plan: Plan, root: Path, todo: list[int], workers: int, tick) -> None:
     """A ``spawn`` process pool. ``ProcessPoolExecutor`` (not ``multiprocessing.Pool``): a worker
-    that dies or fails its set-up breaks the pool with an error instead of being respawned forever."""
+    that dies or fails its set-up breaks the pool with an error instead of being respawned forever.
+    Workers die with this process (:func:`die_with_parent`); on any exception here (a worker's
+    error, Ctrl-C, SIGTERM turned into an exception by the CLI) they are terminated at once
+    instead of finishing their current sample."""
     import multiprocessing as mp
     from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
 
     ctx = mp.get_context("spawn")
     with ProcessPoolExecutor(workers, mp_context=ctx, initializer=init_worker,
-                             initargs=(plan.variant, plan, str(root))) as pool:
+                             initargs=(plan.variant, plan, str(root), os.getpid())) as pool:
         pending = {pool.submit(_worker_make, index) for index in todo}
         try:
             while pending:
@@ -186,16 +261,17 @@ def _run_pool(plan: Plan, root: Path, todo: list[int], workers: int, tick) -> No
                     future.result()  # re-raises a worker's exception here
                     tick()
         except BaseException:
+            _quiet_broken_pool_report()
             for future in pending:
                 future.cancel()
+            _stop_workers()
+            store.remove_partials(root)  # the stopped workers' half-written samples (we hold the lock)
             raise
 
 
 # -- the run -----------------------------------------------------------------------------------------
 
 def _check_out(root: Path, config: GenerateConfig, resume: bool) -> None:
-    if root.exists() and not root.is_dir():
-        raise InputError(f"{root}: exists and is not a directory; choose another --out")
     if not root.exists() or not any(root.iterdir()):
         return
     ds = root / store.DATASET_JSON
@@ -256,11 +332,10 @@ def generate(config: GenerateConfig, out: str | os.PathLike, *, workers: int = 1
              say=None) -> Summary:
     """Generate (or, with ``resume``, complete) the data set of ``config`` in ``out`` (module
     docstring). ``ray``: a Ray address, ``"auto"`` or ``"local"`` (start a local cluster of
-    ``workers`` CPUs); ``say``: optional callable for status lines. Returns a :class:`Summary`."""
-    from tqdm import tqdm
+    ``workers`` CPUs); ``say``: optional callable for status lines. Returns a :class:`Summary`.
 
-    from ..variant import ensure_variant
-
+    One run per directory: ``out`` is locked (:func:`ebr_mitsuba.fsutil.output_lock`) for the
+    run, and a second run into it is refused with :class:`~ebr_mitsuba.errors.BusyError`."""
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise InputError(f"--workers must be an integer >= 1 (got {workers!r})")
     if isinstance(shard_size, bool) or not isinstance(shard_size, int) or shard_size < 1:
@@ -270,11 +345,27 @@ def generate(config: GenerateConfig, out: str | os.PathLike, *, workers: int = 1
 
         require_ray()  # fail before anything is written
     root = Path(out)
+    if root.exists() and not root.is_dir():
+        raise InputError(f"{root}: exists and is not a directory; choose another --out")
+    with output_lock(root, "ebr generate"):
+        return _generate(config, root, workers=workers, resume=resume, ray=ray, shard_size=shard_size,
+                         progress=progress, say=say)
+
+
+def _generate(config: GenerateConfig, root: Path, *, workers: int, resume: bool, ray: str | None,
+              shard_size: int, progress: bool, say) -> Summary:
+    """:func:`generate` once the arguments are checked and ``root`` is locked."""
+    from tqdm import tqdm
+
+    from ..variant import ensure_variant
+
     _check_out(root, config, resume)
     variant = ensure_variant()
     root.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
     partials = store.remove_partials(root)
+    for directory in (root, root / "envs"):  # what a killed atomic write left (we hold the lock)
+        remove_stale_temporaries(directory, recursive=False)
     plan = Plan(config, prepare_maps(config, root, progress=say), variant)
     atomic_write_text(root / store.DATASET_JSON, store.dumps(dataset_doc(plan)))
     if config.source != "<memory>" and Path(config.source).is_file():

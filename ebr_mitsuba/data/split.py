@@ -21,9 +21,10 @@ from __future__ import annotations
 import functools
 import importlib.resources
 import os
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
+
+import tomllib
 
 from ..errors import ConfigError, InputError
 

@@ -49,6 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..errors import InputError
 from ..fsutil import atomic_dir, atomic_path, atomic_write_text
 from ..imageio import write_exr, write_png
 from ..materials import CONVENTIONS, MATERIAL_FORMAT
@@ -190,6 +191,70 @@ def remove_partials(root: Path) -> int:
 
 def read_json(path: Path) -> dict:
     return json.loads(Path(path).read_text())
+
+
+def read_doc(path: Path, fmt: str, fix: str) -> dict:
+    """A JSON object of format ``fmt`` at ``path``, or :class:`InputError` naming the file and
+    ``fix`` (missing, unreadable, not JSON, wrong format)."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: missing; {fix}")
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"{path}: unreadable ({type(exc).__name__}); {fix}") from None
+    if not isinstance(doc, dict) or doc.get("format") != fmt:
+        raise InputError(f"{path}: not a {fmt} file; {fix}")
+    return doc
+
+
+def count_complete(root: Path, count: int) -> int:
+    """How many of samples 0 … count − 1 are complete (:func:`is_complete`)."""
+    return sum(is_complete(root, i) for i in range(int(count)))
+
+
+def remake_hint(root: Path, index: int) -> str:
+    """The fix for a damaged sample, as the error messages give it."""
+    directory = Path(root) / sample_dirname(index)
+    return (f"the sample is damaged: delete {directory} and rerun the 'ebr generate ... --out {root}' "
+            f"command with --resume to remake it ('ebr dataset verify {root}' lists every problem)")
+
+
+def check_sample(root: Path, dataset: dict, index: int, entry: dict) -> None:
+    """The cheap integrity check of a sample before it is read for training or evaluation:
+    ``manifest.json`` present, parseable and with the SHA-256 ``index.json`` records for it; every
+    file the layout needs listed in it; every listed file present with its recorded size and
+    SHA-256. Raises :class:`InputError` naming the first bad file and the fix. (``ebr dataset
+    verify`` does this and also decodes every image.)"""
+    directory = Path(root) / sample_dirname(index)
+    hint = remake_hint(root, index)
+    manifest_path = directory / MANIFEST
+    manifest = read_doc(manifest_path, MANIFEST_FORMAT, hint)
+    if entry.get("manifest_sha256") != sha256_file(manifest_path):
+        raise InputError(f"{manifest_path}: its SHA-256 differs from the one in {Path(root) / INDEX_JSON}; "
+                         f"{hint}")
+    listed = manifest.get("files")
+    if not isinstance(listed, dict):
+        raise InputError(f"{manifest_path}: no 'files' table; {hint}")
+    unlisted = sorted(expected_files(dataset["layout"]) - set(listed))
+    if unlisted:
+        raise InputError(f"{directory / unlisted[0]}: not in {manifest_path}, but the layout needs it; "
+                         f"{hint}")
+    for name, rec in sorted(listed.items()):
+        path = directory / name
+        if not path.is_file():
+            raise InputError(f"{path}: missing; {hint}")
+        if not isinstance(rec, dict) or path.stat().st_size != rec.get("bytes"):
+            raise InputError(f"{path}: size differs from {manifest_path} (truncated or corrupted); {hint}")
+        if sha256_file(path) != rec.get("sha256"):
+            raise InputError(f"{path}: checksum differs from {manifest_path} (corrupted); {hint}")
+
+
+def expected_files(lay: dict) -> set:
+    """The files (relative to the sample directory) a sample of layout ``lay`` must hold."""
+    files = set(lay["photos"].values()) | set(lay["flash_only"].values())
+    files |= set(lay["env_exemplars"]) | set(lay["point_exemplars"]) | set(lay["maps"].values())
+    return files | {lay["env"], lay["meta"], "maps/material.json"}
 
 
 def index_entry(root: Path, index: int) -> dict:

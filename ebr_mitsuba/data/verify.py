@@ -4,7 +4,10 @@ Checks, in order (each failure is one line naming the file):
 
 1. ``dataset.json`` exists, is JSON of format ``ebr-dataset/1`` with a layout;
 2. ``index.json`` exists, is JSON of format ``ebr-index/1`` with the same fingerprint, and lists
-   samples 0 … count − 1 in order, each pointing to its own directory;
+   samples 0 … count − 1 in order, each pointing to its own directory, as many as ``dataset.json``
+   asks for; an interrupted run (no ``index.json``: it is written last) or ``--count`` extension
+   (the counts differ) is one failure that says how many samples are complete and that
+   ``ebr generate ... --resume`` finishes the set;
 3. per sample: the directory and ``manifest.json`` exist; every file the manifest lists exists with
    the recorded size and SHA-256; no file is missing from the manifest or from the layout;
    ``sample.json`` parses and has the right index; the manifest's SHA-256 equals the index entry's;
@@ -61,12 +64,6 @@ def _load_json(path: Path, report: VerifyReport, fmt: str | None = None) -> dict
     return doc
 
 
-def _expected_files(lay: dict) -> set:
-    files = set(lay["photos"].values()) | set(lay["flash_only"].values())
-    files |= set(lay["env_exemplars"]) | set(lay["point_exemplars"]) | set(lay["maps"].values())
-    return files | {lay["env"], lay["meta"], "maps/material.json"}
-
-
 def _check_sample(root: Path, entry: dict, i: int, dataset: dict, report: VerifyReport) -> None:
     from ..imageio import read_image
     from ..sgenv import SGEnvironment
@@ -90,7 +87,7 @@ def _check_sample(root: Path, entry: dict, i: int, dataset: dict, report: Verify
     for name in sorted(present - set(listed)):
         report.errors.append(f"{directory / name}: not listed in the manifest")
     lay = dataset["layout"]
-    for name in sorted(_expected_files(lay) - set(listed)):
+    for name in sorted(store.expected_files(lay) - set(listed)):
         report.errors.append(f"{directory / name}: missing from the manifest (the layout needs it)")
     bad = set()
     for name, rec in sorted(listed.items()):
@@ -136,6 +133,14 @@ def verify(root: str | Path, progress: bool = False) -> VerifyReport:
         report.errors.append(f"{root}: no such directory")
         return report
     dataset = _load_json(root / store.DATASET_JSON, report, store.DATASET_FORMAT)
+    if dataset is not None and not (root / store.INDEX_JSON).exists():
+        # the run writes index.json last: this is an interrupted run, not a damaged file
+        count = dataset.get("count")
+        done = store.count_complete(root, count) if isinstance(count, int) else 0
+        report.errors.append(f"{root / store.INDEX_JSON}: missing: the run was interrupted with {done} of "
+                             f"{count} samples complete; rerun the 'ebr generate ... --out {root}' command "
+                             f"with --resume to finish it")
+        return report
     index = _load_json(root / store.INDEX_JSON, report, store.INDEX_FORMAT)
     if dataset is None or index is None:
         return report
@@ -145,6 +150,14 @@ def verify(root: str | Path, progress: bool = False) -> VerifyReport:
         return report
     if index.get("fingerprint") != dataset.get("fingerprint"):
         report.errors.append(f"{root / store.INDEX_JSON}: fingerprint differs from dataset.json's")
+    if dataset.get("count") != index.get("count"):
+        # dataset.json is rewritten when a run starts, index.json when it ends
+        count = dataset.get("count")
+        done = store.count_complete(root, count) if isinstance(count, int) else 0
+        report.errors.append(f"{root}: dataset.json asks for {count} samples but index.json lists "
+                             f"{index.get('count')}: an interrupted --count extension with {done} of {count} "
+                             f"samples complete; rerun 'ebr generate ... --out {root} --count {count} "
+                             f"--resume' to finish it")
     entries = index.get("samples", [])
     count = index.get("count")
     if not isinstance(entries, list) or count != len(entries):

@@ -60,26 +60,72 @@ def _table(header: list[str], rows: list[list], left: int = 1) -> str:
     return f"<table><tr>{th}</tr>{body}</table>"
 
 
+EXEMPLAR_KEY = 0.18  # thumbnails: the exemplar stack's mean luminance is shown as middle grey
+
+
+def exemplar_exposure(images) -> float:
+    """One exposure for a set of exemplar thumbnails: their mean luminance → :data:`EXEMPLAR_KEY`.
+
+    Shared, so the set compares (the exemplars render one material at several roughness values
+    under one light), and set on the mean rather than on a high percentile: exemplars are low in
+    contrast, and mapping their 99.5th percentile to white left them washed out. 1 for black.
+    """
+    import numpy as np
+
+    from .inputs import luminance
+
+    lum = [luminance(np.asarray(a, np.float32)).astype(np.float64) for a in images]
+    mean = float(np.mean([m.mean() for m in lum])) if lum else 0.0
+    return EXEMPLAR_KEY / mean if mean > 0 and np.isfinite(mean) else 1.0
+
+
+_SVG_PAD = (46, 10, 16, 12)  # left (tick labels), right, top, bottom
+
+
 def _loss_svg(history: list, width: int = 420, height: int = 140) -> str:
-    """A small polyline of the refinement loss (log scale) over the steps."""
+    """A small polyline of the refinement loss (log scale) over the steps.
+
+    The first and last values are written beside their own points (not in fixed corners, where a
+    label could sit next to a peak it does not describe); the left axis carries the maximum and
+    minimum, so a peak is read off there.
+    """
     import math
 
-    pts = [(s, v) for s, v in history if v > 0]
+    pts = [(s, v) for s, v in history if v > 0 and math.isfinite(v)]
     if len(pts) < 2:
         return ""
+    left, right, top, bottom = _SVG_PAD
     s0, s1 = pts[0][0], pts[-1][0]
     lv = [math.log10(v) for _, v in pts]
     lo, hi = min(lv), max(lv)
     span = (hi - lo) or 1.0
-    xy = " ".join(
-        f"{10 + (width - 20) * (s - s0) / max(s1 - s0, 1):.1f},{10 + (height - 20) * (hi - l) / span:.1f}"
-        for (s, _), l in zip(pts, lv)
-    )
+
+    def x(s):
+        return left + (width - left - right) * (s - s0) / max(s1 - s0, 1)
+
+    def y(level):
+        return top + (height - top - bottom) * (hi - level) / span
+
+    xy = " ".join(f"{x(s):.1f},{y(level):.1f}" for (s, _), level in zip(pts, lv))
+
+    def beside(px, py, anchor, text):  # above the point, or below it when at the top edge
+        ty = py - 6 if py - 6 >= top + 4 else py + 14
+        return (f'<text x="{px:.1f}" y="{ty:.1f}" font-size="11" text-anchor="{anchor}">'
+                f"{html.escape(text)}</text>")
+
+    def tick(level, value):
+        return (f'<text x="{left - 4}" y="{y(level) + 4:.1f}" font-size="10" text-anchor="end" '
+                f'fill="#666">{value:.3g}</text>')
+
     return (
         f'<svg width="{width}" height="{height}" style="border:1px solid #ddd">'
-        f'<polyline fill="none" stroke="#36c" stroke-width="2" points="{xy}"/>'
-        f'<text x="12" y="20" font-size="11">loss {pts[0][1]:.3g} (step {s0})</text>'
-        f'<text x="{width - 150}" y="{height - 14}" font-size="11">{pts[-1][1]:.3g} (step {s1})</text></svg>'
+        f'<line x1="{left}" y1="{top}" x2="{left}" y2="{height - bottom}" stroke="#aaa"/>'
+        + tick(hi, max(v for _, v in pts))
+        + tick(lo, min(v for _, v in pts))
+        + f'<polyline fill="none" stroke="#36c" stroke-width="2" points="{xy}"/>'
+        + beside(x(s0) + 2, y(lv[0]), "start", f"loss {pts[0][1]:.3g} (step {s0})")
+        + beside(x(s1) - 2, y(lv[-1]), "end", f"{pts[-1][1]:.3g} (step {s1})")
+        + "</svg>"
     )
 
 
@@ -87,8 +133,10 @@ def render_report(out: Path, summary: dict) -> str:
     """The HTML text of the report for the estimate directory ``out`` (its PNGs must exist)."""
     out = Path(out)
     inp = summary["inputs"]
+    # ``out`` is the pipeline's temporary directory; the title names the final one
+    name = Path(summary.get("out") or out).name
     parts = [
-        f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>ebr estimate: {html.escape(out.name)}"
+        f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>ebr estimate: {html.escape(name)}"
         f"</title><style>{_CSS}</style></head><body>",
         f"<h1>ebr estimate — {html.escape(summary['capture'])} capture</h1>",
     ]
@@ -167,7 +215,8 @@ def render_report(out: Path, summary: dict) -> str:
     ex = sorted(p.name for p in (out / "exemplars").glob("*.png")) if (out / "exemplars").is_dir() else []
     if ex:
         parts.append(
-            "<p>Lighting network outputs (exemplars, flash-only image):</p>"
+            "<p>Lighting network outputs (exemplars at one shared exposure, their mean luminance shown "
+            "as middle grey; flash-only image):</p>"
             + "".join(_img(out, f"exemplars/{n}", n[:-4]) for n in ex)
         )
 
@@ -209,6 +258,8 @@ def render_report(out: Path, summary: dict) -> str:
             f"in {r['seconds']:.1f} s: mean re-render RMSE {before:.4g} → {after:.4g} "
             f"({change:+.1%}).</p>" + _loss_svg(r["history"])
         )
+        if r.get("note"):  # issue 16 item 18: the loss rose, the best iterate was kept
+            parts.append(f'<p class="warn">Refinement {html.escape(r["note"])}.</p>')
 
     novel = sorted(p.name for p in (out / "novel").glob("*.png")) if (out / "novel").is_dir() else []
     if novel:
@@ -249,4 +300,4 @@ def write_report(out: Path, summary: dict) -> Path:
     return path
 
 
-__all__ = ["render_report", "write_report"]
+__all__ = ["EXEMPLAR_KEY", "exemplar_exposure", "render_report", "write_report"]

@@ -32,9 +32,11 @@ class DataFacts:
     def from_dataset(root: str | Path) -> DataFacts:
         root = Path(root)
         path = root / store.DATASET_JSON
-        if not path.is_file():
-            raise InputError(f"{path}: missing; generate the data set with 'ebr generate'")
-        d = store.read_json(path)
+        d = store.read_doc(
+            path,
+            store.DATASET_FORMAT,
+            f"generate the data set with 'ebr generate ... --out {root}' (or finish it with --resume)",
+        )
         h, w = (int(v) for v in d["resolution"])
         if h != w:
             raise InputError(f"{path}: resolution {h}x{w}; training needs square images")

@@ -93,14 +93,21 @@ class TrainingData:
 
 
 def load_training_data(root: str | Path, max_samples: int = 0, progress=None) -> TrainingData:
-    """Read samples 0 … min(N, max_samples) − 1 of the data set at ``root`` (0: all)."""
+    """Read samples 0 … min(N, max_samples) − 1 of the data set at ``root`` (0: all), each
+    checked against its manifest first (:func:`ebr_mitsuba.data.store.check_sample`: a damaged
+    file is an :class:`InputError` naming it)."""
     from ..data.dataset import GeneratedDataset
 
     ds = GeneratedDataset(root)
     n = len(ds) if max_samples <= 0 else min(len(ds), max_samples)
     if n == 0:
         raise InputError(f"{root}: the data set has no samples; generate some with 'ebr generate'")
-    items = [ds[i] for i in (progress(range(n), desc="loading", unit="sample") if progress else range(n))]
+    bar = progress(range(n), desc="loading", unit="sample") if progress else None
+    try:
+        items = [ds[i] for i in (bar if bar is not None else range(n))]
+    finally:  # a damaged sample raises: clear the bar so that the error starts its own line
+        if hasattr(bar, "close"):
+            bar.close()
 
     def stack(key):
         return torch.stack([it[key] for it in items])

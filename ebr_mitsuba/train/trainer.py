@@ -41,7 +41,16 @@ per-term losses, lr, samples/s, seconds) and the progress bar; every ``checkpoin
 and at each phase end ``last.pt`` (atomic; at a phase end also ``after_<phase>.pt``, weights
 only, for initialising other runs). The run ends with ``model.pt`` and ``summary.json``.
 ``--resume`` continues from ``last.pt`` at the step after the one saved (weights, optimizer,
-generators), reusing the caches.
+generators, the summary of the phases before it, the phase's elapsed seconds), reusing the
+caches; ``log.csv`` keeps the rows up to the checkpoint (the later ones are redone).
+
+**Output.** Rank 0 locks ``--out`` for the run (:class:`ebr_mitsuba.fsutil.OutputLock`; a second
+run into it is refused) and removes the temporaries a killed atomic write left there. A
+directory holding only :data:`START_FILES` (a run stopped before its first checkpoint) is started
+over at step 0, with or without ``--resume``; one with a checkpoint needs ``--resume``; anything
+else is refused. **Determinism**: :func:`deterministic` (Dr.Jit on one thread, deterministic
+CUDA kernels) around the run; same seed, machine, torch thread count and world size give the
+same bits. Only rank 0 prints.
 """
 
 from __future__ import annotations
@@ -50,13 +59,15 @@ import contextlib
 import csv
 import json
 import math
+import os
+import shutil
 import time
 from pathlib import Path
 
 import torch
 
 from ..errors import InputError
-from ..fsutil import atomic_write_text
+from ..fsutil import OutputLock, atomic_write_text, is_temporary, remove_stale_temporaries
 from ..nets import Maps
 from ..nets.losses import MapWeights, parameter_l1, rendering_loss, sample_view_light_pairs
 from ..nets.transforms import log_input
@@ -69,6 +80,8 @@ from .inference import pick_device
 from .renders import cascade_forward
 
 CSV_FIELDS = ("phase", "step", "loss", "terms", "lr", "samples_per_s", "seconds")
+START_FILES = frozenset({"config.json", "log.csv", "cache"})
+"""What a run writes before its first checkpoint: a directory holding only these is started over."""
 
 
 def cosine_lr(step: int, total: int, lr0: float, lr1: float) -> float:
@@ -76,6 +89,33 @@ def cosine_lr(step: int, total: int, lr0: float, lr1: float) -> float:
     if total <= 1:
         return lr0
     return lr1 + 0.5 * (lr0 - lr1) * (1.0 + math.cos(math.pi * min(step, total) / total))
+
+
+@contextlib.contextmanager
+def deterministic(cuda: bool = False):
+    """Same-seed runs give the same bits on one machine: for the block, Dr.Jit runs on one thread
+    (its multi-threaded scatter-adds — the SG extraction of the stage-2 cache, the gradients of the
+    Dr.Jit renders — add in a varying order otherwise), and with ``cuda`` cuDNN/torch pick
+    deterministic kernels. torch's CPU kernels are deterministic for a fixed thread count already.
+    Everything is restored afterwards."""
+    import drjit as dr
+
+    threads = dr.thread_count()
+    cudnn = (torch.backends.cudnn.deterministic, torch.backends.cudnn.benchmark)
+    algorithms = (
+        torch.are_deterministic_algorithms_enabled(),
+        torch.is_deterministic_algorithms_warn_only_enabled(),
+    )
+    dr.set_thread_count(1)
+    torch.backends.cudnn.deterministic, torch.backends.cudnn.benchmark = True, False
+    if cuda:
+        torch.use_deterministic_algorithms(True, warn_only=True)
+    try:
+        yield
+    finally:
+        dr.set_thread_count(threads)
+        torch.backends.cudnn.deterministic, torch.backends.cudnn.benchmark = cudnn
+        torch.use_deterministic_algorithms(algorithms[0], warn_only=algorithms[1])
 
 
 @contextlib.contextmanager
@@ -99,10 +139,22 @@ class Trainer:
         self.config = config
         self.out = Path(out)
         self.resume = resume
-        self.log = log or (lambda msg: None)
         self.progress = progress
         self.device = ddp.local_device(pick_device(config.train.device))
+        if self.device.type == "cuda":  # before the first cuBLAS call (deterministic GEMMs)
+            os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
         self.dist = ddp.init_distributed(self.device)
+        self.log = (log or (lambda msg: None)) if self.dist.main else (lambda msg: None)  # rank 0 speaks
+        # rank 0 holds the lock of --out for the run: a second run into it is refused (BusyError)
+        self._lock = OutputLock(self.out, "ebr train").acquire() if self.dist.main else None
+        try:
+            self._setup()
+        except BaseException:
+            self.close()
+            raise
+
+    def _setup(self) -> None:
+        config = self.config
         if config.train.threads > 0:
             torch.set_num_threads(config.train.threads)
         torch.set_flush_denormal(True)  # NAFNet's zero-initialised scales otherwise meet denormals
@@ -113,7 +165,7 @@ class Trainer:
         self.data = load_training_data(
             config.data.train, config.data.max_samples, self.progress if self.dist.main else None
         )
-        self.state = {"phase": None, "step": 0, "done": []}
+        self.state = {"phase": None, "step": 0, "done": [], "seconds": 0.0}
         self.resume_data = None
         self._resume_order = None
         self.summary: dict = {"phases": {}}
@@ -121,6 +173,11 @@ class Trainer:
         self.weights = MapWeights(
             config.loss.normal, config.loss.diffuse, config.loss.specular, config.loss.roughness
         )
+
+    def close(self) -> None:
+        """Release the lock of ``--out`` (also done when :meth:`run` ends or fails)."""
+        if self._lock is not None:
+            self._lock.release()
 
     # -- setup --------------------------------------------------------------------------------
 
@@ -149,32 +206,29 @@ class Trainer:
             )
 
     def _prepare_out(self) -> None:
+        """Check ``--out`` and set up the start or the resume (module docstring, "Output")."""
         last = self.out / "last.pt"
-        if self.resume:
-            if not last.is_file():
+        names = [p.name for p in self.out.iterdir()] if self.out.exists() else []
+        others = sorted(n for n in names if n not in START_FILES and not is_temporary(n))
+        if self.resume and last.is_file():
+            self._load_resume(last)
+        elif others and self.dist.main:
+            if self.resume:
                 raise InputError(f"{last}: nothing to resume; run without --resume first")
-            data = load_checkpoint(last, expect_kind=self.config.kind)
-            if data["config"] != self.config.to_dict():
-                raise InputError(
-                    f"{last}: written with another config; resume with the same config or choose a new --out"
-                )
-            self.bundle.load_state(data["model"], str(last))
-            self.state = dict(data["step"])
-            self.resume_data = data
-            old = self.out / "summary.json"
-            if old.is_file():  # keep the phases an earlier (interrupted or finished) part ran
-                try:
-                    self.summary["phases"].update(json.loads(old.read_text()).get("phases", {}))
-                except (OSError, ValueError):
-                    pass
-            self.log(f"resuming at phase {self.state['phase']} step {self.state['step']}")
-        else:
-            others = [p for p in self.out.iterdir() if p.name != "cache"] if self.out.exists() else []
-            if others and self.dist.main:
-                raise InputError(
-                    f"--out {self.out}: exists and is not empty; pass --resume to continue "
-                    f"the run there or choose a new directory"
-                )
+            fix = "pass --resume to continue the run there" if last.is_file() else "remove it"
+            raise InputError(f"--out {self.out}: exists and is not empty; {fix} or choose a new directory")
+        else:  # a new run, or one killed before its first checkpoint: start (over) at step 0
+            old = self._old_config()
+            if old is not None and old != json.loads(json.dumps(self.config.to_dict())):
+                if self.resume:
+                    raise InputError(
+                        f"{self.out / 'config.json'}: written with another config; resume with the same "
+                        f"config or choose a new --out"
+                    )
+                if self.dist.main:  # another config's exemplar selections and SGs
+                    shutil.rmtree(self.out / "cache", ignore_errors=True)
+            if self.resume:
+                self.log(f"{self.out}: no checkpoint yet (stopped before the first one): starting at step 0")
             if self.config.train.init:
                 data = load_checkpoint(self.config.train.init, expect_kind=self.config.kind)
                 self.bundle.load_state(data["model"], self.config.train.init, strict=False)
@@ -182,11 +236,63 @@ class Trainer:
         ddp.barrier(self.dist)
         if self.dist.main:
             self.out.mkdir(parents=True, exist_ok=True)
+            remove_stale_temporaries(self.out)  # what killed atomic writes left (we hold the lock)
             atomic_write_text(self.out / "config.json", json.dumps(self.config.to_dict(), indent=1) + "\n")
-            if not (self.out / "log.csv").is_file():
-                with open(self.out / "log.csv", "w", newline="") as f:
-                    csv.writer(f).writerow(CSV_FIELDS)
+            self._write_log_rows(self._kept_log_rows() if self.resume_data is not None else [])
         ddp.barrier(self.dist)
+
+    def _old_config(self) -> dict | None:
+        path = self.out / "config.json"
+        try:
+            return json.loads(path.read_text()) if path.is_file() else None
+        except (OSError, ValueError):
+            return None  # damaged: the run is started over and rewrites it
+
+    def _load_resume(self, last: Path) -> None:
+        data = load_checkpoint(last, expect_kind=self.config.kind)
+        if data["config"] != self.config.to_dict():
+            raise InputError(
+                f"{last}: written with another config; resume with the same config or choose a new --out"
+            )
+        self.bundle.load_state(data["model"], str(last))
+        self.state = {"seconds": 0.0, **data["step"]}
+        self.resume_data = data
+        if isinstance(data.get("summary"), dict):  # the phases finished before the checkpoint
+            self.summary = data["summary"]
+        else:  # a checkpoint of an older version: the phases of a finished run's summary.json
+            old = self.out / "summary.json"
+            try:
+                self.summary["phases"].update(json.loads(old.read_text()).get("phases", {}))
+            except (OSError, ValueError, AttributeError):
+                pass
+        self.log(f"resuming at phase {self.state['phase']} step {self.state['step']}")
+
+    def _kept_log_rows(self) -> list[list[str]]:
+        """The rows of ``log.csv`` up to the checkpoint resumed from (later ones are redone)."""
+        path = self.out / "log.csv"
+        if not path.is_file():
+            return []
+        with open(path, newline="") as f:
+            rows = list(csv.reader(f))[1:]
+        done, phase, step = set(self.state.get("done", [])), self.state.get("phase"), int(self.state["step"])
+        kept = []
+        for row in rows:
+            try:
+                ok = row[0] in done or (row[0] == phase and int(row[1]) <= step)
+            except (IndexError, ValueError):
+                ok = False  # a line cut short by the kill
+            if ok:
+                kept.append(row)
+        return kept
+
+    def _write_log_rows(self, rows: list[list[str]]) -> None:
+        import io
+
+        buf = io.StringIO()
+        writer = csv.writer(buf)
+        writer.writerow(CSV_FIELDS)
+        writer.writerows(rows)
+        atomic_write_text(self.out / "log.csv", buf.getvalue())
 
     # -- phases -------------------------------------------------------------------------------
 
@@ -211,6 +317,15 @@ class Trainer:
         return [p for p in out if p[1] > 0]
 
     def run(self) -> dict:
+        """Train every phase not done yet, write ``model.pt`` and ``summary.json``; returns the
+        summary. Releases the lock of ``--out`` when it ends, however it ends."""
+        try:
+            with deterministic(self.device.type == "cuda"):
+                return self._run()
+        finally:
+            self.close()
+
+    def _run(self) -> dict:
         t_start = time.perf_counter()
         for index, (name, steps, modules, lr0) in enumerate(self.phases()):
             if name in self.state.get("done", []):
@@ -299,7 +414,9 @@ class Trainer:
             if (self.progress and self.dist.main)
             else None
         )
-        t0, seen, last_log = time.perf_counter(), 0, time.perf_counter()
+        elapsed = float(self.state.get("seconds", 0.0)) if start > 0 else 0.0  # before the resume
+        t0 = time.perf_counter() - elapsed
+        seen, last_log = 0, time.perf_counter()
         loss_value, terms = float("nan"), {}
         for step in range(start, steps):
             lr = cosine_lr(step, steps, lr0, t.lr_final)
@@ -339,11 +456,19 @@ class Trainer:
                     bar.n = done
                     bar.set_postfix_str(f"loss {loss_value:.4g}, {rate:.1f} samples/s")
                     bar.refresh()
+            if done == steps:  # before the checkpoint, which carries the summary to a resume
+                self.summary["phases"][name] = {
+                    "steps": steps,
+                    "final_loss": loss_value,
+                    "terms": terms,
+                    "seconds": round(time.perf_counter() - t0, 1),
+                }
             if done % t.checkpoint_every == 0 or done == steps:
                 self.state = {
                     "phase": name,
                     "step": done,
                     "done": list(self.state.get("done", [])) + ([name] if done == steps else []),
+                    "seconds": round(time.perf_counter() - t0, 3),
                 }
                 if self.dist.main:
                     self._save(self.out / "last.pt", opt, order_gen, loss_gen, (perm, pos))
@@ -351,12 +476,6 @@ class Trainer:
                         self._save(self.out / f"after_{name}.pt")
         if bar is not None:
             bar.close()
-        self.summary["phases"][name] = {
-            "steps": steps,
-            "final_loss": loss_value,
-            "terms": terms,
-            "seconds": round(time.perf_counter() - t0, 1),
-        }
         self.log(f"{name}: {steps} steps, loss {loss_value:.4g} ({time.perf_counter() - t0:.0f} s)")
 
     def _save(self, path: Path, opt=None, order_gen=None, loss_gen=None, order=None) -> None:
@@ -368,6 +487,7 @@ class Trainer:
             "net_config": net_configs(self.bundle),
             "data": self.facts.to_dict(),
             "step": self.state,
+            "summary": self.summary,
             "optimizer": opt.state_dict() if opt is not None else None,
             "rng": {
                 "order": order_gen.get_state(),
