@@ -151,3 +151,29 @@ def test_center_square_crop_of_a_non_square_set():
     sq = center_square(m)
     assert sq.shape == (6, 6) and np.all(sq.diffuse == 0.5)
     assert center_square(sq) is sq
+
+
+def test_oracle_constant_is_the_truths_mean_and_scores_its_spread():
+    from ebr_mitsuba.estimate.metrics import map_rmse
+    from ebr_mitsuba.svbrdf import SVBRDF
+    from ebr_mitsuba.train.baselines import oracle_constant
+
+    rng = np.random.default_rng(3)
+    h = w = 8
+    n = np.dstack([rng.normal(0, 0.1, (h, w, 2)), np.ones((h, w))])
+    truth = SVBRDF(n, rng.uniform(0, 1, (h, w, 3)), rng.uniform(0, 0.1, (h, w, 3)), rng.uniform(0, 1, (h, w)))
+    oc = oracle_constant(truth)
+    assert oc.shape == truth.shape
+    np.testing.assert_allclose(oc.diffuse[3, 4], truth.diffuse.reshape(-1, 3).mean(0), rtol=1e-5)
+    np.testing.assert_allclose(oc.roughness, truth.roughness.mean(), rtol=1e-5)
+    assert np.allclose(np.linalg.norm(oc.normal, axis=-1), 1, atol=1e-5)
+    err = map_rmse(oc, truth)
+    np.testing.assert_allclose(err["roughness"], truth.roughness.std(), rtol=1e-4)
+    assert map_rmse(oracle_constant(oc), oc)["mean"] < 1e-6
+
+
+def test_material_class_of_rows():
+    from ebr_mitsuba.train.evaluate import material_class
+
+    assert material_class({"material": "procedural:tiles:12"}) == "procedural:tiles"
+    assert material_class({"material": str(SHARED / "materials" / "Metal009")}) == "metal"

@@ -1,7 +1,8 @@
 """Evaluate a trained model on a generated data set (DESIGN §3 metrics).
 
   ebr eval [--checkpoint CKPT] --data DIR [--json] [--limit N] [--seed S]
-           [--baseline-mean TRAIN_DIR] [--baseline-checkpoint NAME=CKPT ...] [--fixed-roughness R]
+           [--baseline-mean TRAIN_DIR] [--baseline-oracle] [--baseline-checkpoint NAME=CKPT ...]
+           [--fixed-roughness R]
 
 For every sample the model sees only the photos; its maps are scored against the ground truth:
 
@@ -12,7 +13,9 @@ For every sample the model sees only the photos; its maps are scored against the
   n                 samples evaluated
 
 --json prints {"per_map_rmse": {...}, "rerender_rmse", "ssim", "seconds_per_sample", "n",
-"per_sample": [...], "groups": {"real"|"procedural": {...}}, "baselines": {...}} on stdout.
+"per_sample": [...], "groups": {"real"|"procedural": {...}}, "classes": {CLASS: {...}},
+"baselines": {...}} on stdout (CLASS: the real set's class of materials_extra/index.json, or
+procedural:FAMILY).
 
 Options:
   --checkpoint CKPT         checkpoint of `ebr train` [the shipped model]
@@ -20,6 +23,8 @@ Options:
   --limit N                 first N samples only [all]
   --seed S                  seed of the re-render light/view pairs [0]
   --baseline-mean TRAIN_DIR also score baseline (a): the per-pixel mean maps of that data set
+  --baseline-oracle         also score the oracle constant: each sample's own ground-truth mean
+                            maps (what a model must beat to have recovered any structure)
   --baseline-checkpoint NAME=CKPT
                             also score another checkpoint on the same samples and pairs, reported
                             as baselines[NAME] (e.g. no-exemplars=runs/noex/model.pt); repeatable
@@ -59,6 +64,11 @@ def add_arguments(parser) -> None:
         metavar="R",
         help="exemplars at roughness R instead of the adaptive selection (ablation)",
     )
+    parser.add_argument(
+        "--baseline-oracle",
+        action="store_true",
+        help="also score the oracle constant: each sample's own ground-truth mean maps (DESIGN §6)",
+    )
     parser.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
 
 
@@ -75,7 +85,14 @@ def _line(name: str, m: dict) -> str:
 def run(args) -> int:
     from ..errors import InputError
     from ..train.baselines import MeanMaps
-    from ..train.evaluate import evaluate, group_means, material_group, model_predictor
+    from ..train.evaluate import (
+        evaluate,
+        group_means,
+        material_class,
+        material_group,
+        model_predictor,
+        oracle_predictor,
+    )
     from ..train.inference import load_model
 
     if args.limit < 0:
@@ -89,7 +106,7 @@ def run(args) -> int:
             raise InputError(
                 f"--baseline-checkpoint {spec!r}: write NAME=CHECKPOINT, e.g. no-exemplars=runs/noex/model.pt"
             )
-        if name == "mean_maps" or name in (o[0] for o in others):
+        if name in ("mean_maps", "oracle_constant") or name in (o[0] for o in others):
             raise InputError(
                 f"--baseline-checkpoint {spec!r}: the name {name!r} is used twice; give each its own"
             )
@@ -108,7 +125,14 @@ def run(args) -> int:
     result["checkpoint"] = args.checkpoint or "shipped"
     result["data"] = str(args.data)
     result["groups"] = group_means(result["per_sample"], material_group)
+    result["classes"] = group_means(result["per_sample"], material_class)
     say(_line("model", result))
+    if args.baseline_oracle:
+        base = evaluate(oracle_predictor, args.data, limit=args.limit, seed=args.seed)
+        base["groups"] = group_means(base["per_sample"], material_group)
+        base["classes"] = group_means(base["per_sample"], material_class)
+        result.setdefault("baselines", {})["oracle_constant"] = base
+        say(_line("oracle constant", base))
     if args.baseline_mean:
         mean = MeanMaps.from_dataset(args.baseline_mean, bundle.config.data.max_samples)
         base = evaluate(
@@ -118,6 +142,7 @@ def run(args) -> int:
             seed=args.seed,
         )
         base["groups"] = group_means(base["per_sample"], material_group)
+        base["classes"] = group_means(base["per_sample"], material_class)
         result.setdefault("baselines", {})["mean_maps"] = base
         say(_line("mean maps", base))
     for name, other in loaded:
@@ -126,6 +151,7 @@ def run(args) -> int:
         )
         base["checkpoint"] = str(dict(others)[name])
         base["groups"] = group_means(base["per_sample"], material_group)
+        base["classes"] = group_means(base["per_sample"], material_class)
         result.setdefault("baselines", {})[name] = base
         say(_line(name, base))
     if args.json:

@@ -2,6 +2,10 @@
 
 * :class:`MeanMaps` — baseline (a): every sample gets the training set's per-pixel mean maps
   (normals averaged as vectors and renormalised), whatever the photos show.
+* :func:`oracle_constant` — the "oracle constant" of the EBREnv protocol (DESIGN §6): each test
+  sample gets its *own* ground truth's spatial mean, one value per map (normals averaged as
+  vectors and renormalised). No estimator can know these means; a model that does not beat them
+  recovers no spatial structure that pays off.
 
 Baseline (b), the same network trained without exemplars, is a checkpoint of its own
 (``configs/train_small_noexemplars.toml``) evaluated like any model.
@@ -55,4 +59,18 @@ class MeanMaps:
         return self.maps
 
 
-__all__ = ["MeanMaps"]
+def oracle_constant(truth: SVBRDF) -> SVBRDF:
+    """The spatial mean of every map of ``truth``, broadcast to its grid."""
+    shape = truth.shape
+    n = truth.normal.reshape(-1, 3).astype(np.float64).mean(axis=0)
+    n = n / max(float(np.linalg.norm(n)), 1e-12)
+
+    def flat(a: np.ndarray, channels: int | None) -> np.ndarray:
+        mean = a.reshape(-1, channels).mean(axis=0) if channels else np.array(a.mean())
+        return np.broadcast_to(mean.astype(np.float32), shape + ((channels,) if channels else ())).copy()
+
+    return SVBRDF(flat(n[None], 3), flat(truth.diffuse, 3), flat(truth.specular, 3),
+                  flat(truth.roughness, None), source=f"oracle constant of {truth.source}")
+
+
+__all__ = ["MeanMaps", "oracle_constant"]

@@ -25,7 +25,10 @@ def _truth(item: dict) -> SVBRDF:
 
 
 def model_predictor(bundle, fixed_roughness: float | None = None) -> Callable[[dict, list[str]], SVBRDF]:
-    """``predict(item, shot_names) -> SVBRDF`` for a loaded model."""
+    """``predict(item, shot_names) -> SVBRDF`` for a loaded model.
+
+    Photos finer than the model's grid are area-averaged to the grid and the maps area-resampled
+    back to the data set's resolution (the estimate a grid-sized model makes of that capture)."""
     from .inference import predict
 
     def run(item: dict, names: list[str]) -> SVBRDF:
@@ -37,6 +40,12 @@ def model_predictor(bundle, fixed_roughness: float | None = None) -> Callable[[d
         if "noflash" not in names:
             raise InputError(f"the data set has shots {names}; an ebrenv model needs flash / no-flash pairs")
         img = {n: photos[k].permute(1, 2, 0).numpy() for k, n in enumerate(names)}
+        size = img[names[0]].shape[:2]
+        grid = _grid(bundle)
+        if size != (grid, grid):  # a data set finer than the model's grid: the grid-resampled estimate
+            from ..imageio import resize_area
+
+            img = {n: resize_area(a, (grid, grid)) for n, a in img.items()}
         far = ()
         if bundle.lighting.config.num_shots == 4:  # a near-far model reads the far pair too
             if "far_flash" not in img or "far_noflash" not in img:
@@ -44,9 +53,19 @@ def model_predictor(bundle, fixed_roughness: float | None = None) -> Callable[[d
                     f"the data set has shots {names}; this near-far model needs a near-far data set"
                 )
             far = (img["far_flash"], img["far_noflash"])
-        return predict(bundle, img["flash"], img["noflash"], *far, fixed_roughness=fixed_roughness).maps
+        maps = predict(bundle, img["flash"], img["noflash"], *far, fixed_roughness=fixed_roughness).maps
+        if maps.shape != size:
+            from ..materials import resample_svbrdf
+
+            maps = resample_svbrdf(maps, size)
+        return maps
 
     return run
+
+
+def _grid(bundle) -> int:
+    res = bundle.resolution
+    return int(res[0] if isinstance(res, (tuple, list)) else res)
 
 
 def evaluate(
@@ -99,4 +118,24 @@ def material_group(row: dict) -> str:
     return "procedural" if str(row.get("material", "")).startswith("procedural:") else "real"
 
 
-__all__ = ["evaluate", "group_means", "material_group", "model_predictor"]
+def material_class(row: dict) -> str:
+    """A row's material class: the real set's class (``materials_extra/index.json``; the sets of
+    ``materials/`` by name), or ``procedural:FAMILY``."""
+    from ..data.split import material_class as real_class
+
+    spec = str(row.get("material", ""))
+    if spec.startswith("procedural:"):
+        return "procedural:" + spec.split(":")[1]
+    return real_class(spec)
+
+
+def oracle_predictor(item: dict, names: list[str]) -> SVBRDF:
+    """Baseline: the sample's own ground-truth means (:func:`.baselines.oracle_constant`)."""
+    from .baselines import oracle_constant
+
+    return oracle_constant(_truth(item))
+
+
+__all__ = [
+    "evaluate", "group_means", "material_class", "material_group", "model_predictor", "oracle_predictor",
+]
