@@ -25,7 +25,8 @@ Validation (readers): a missing, unreadable or truncated file, a channel count o
 ``expect_channels``, a size other than ``expect_shape = (H, W)`` and NaN/Inf pixels (unless
 ``allow_nonfinite=True``) each raise :class:`~ebr_mitsuba.errors.InputError` with one line that
 names the file and the fix. Writers are atomic (:func:`ebr_mitsuba.fsutil.atomic_path`) and
-synchronous; a bad array passed by code is a ``ValueError``.
+synchronous; a full disk is a :class:`~ebr_mitsuba.errors.DiskFullError` naming the file (nothing
+is left under its name); a bad array passed by code is a ``ValueError``.
 
 :func:`resize_area` resamples an image by exact area averaging (box filter of the footprint).
 """
@@ -40,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import ConfigError, InputError
+from .errors import ConfigError, InputError, reraise_disk_full
 from .fsutil import atomic_path
 
 COLORSPACES = ("srgb", "linear")
@@ -207,7 +208,7 @@ def write_exr(path: str | os.PathLike, array: np.ndarray, channels: Sequence[str
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     pixels = {name: np.ascontiguousarray(a[..., k]) for k, name in enumerate(channels)}
     path = Path(path)
-    with atomic_path(path) as tmp, OpenEXR.File(header, pixels) as exr:
+    with reraise_disk_full(path), atomic_path(path) as tmp, OpenEXR.File(header, pixels) as exr:
         exr.write(str(tmp))
     return path
 
@@ -290,24 +291,40 @@ def read_ldr(path: str | os.PathLike, colorspace: str = "srgb", *, expect_channe
     return check_image(image, path, expect_channels=expect_channels, expect_shape=expect_shape)
 
 
-def write_png(path: str | os.PathLike, linear: np.ndarray, encode: str = "srgb", bits: int = 8) -> Path:
+CLIP_MODES = ("channel", "hue")
+
+
+def clip_hue(image: np.ndarray) -> np.ndarray:
+    """Clip (H, W, C) to [0, 1] keeping each pixel's hue: negatives become 0, then a pixel whose
+    largest channel exceeds 1 is scaled down by it (per-channel clipping turns bright coloured
+    pixels white or shifts their hue: coloured fringes around highlights)."""
+    a = np.maximum(np.asarray(image, np.float64), 0.0)
+    top = a.max(axis=-1, keepdims=True)
+    return np.where(top > 1.0, a / np.where(top > 1.0, top, 1.0), a)
+
+
+def write_png(path: str | os.PathLike, linear: np.ndarray, encode: str = "srgb", bits: int = 8,
+              clip: str = "channel") -> Path:
     """Write a linear (H, W), (H, W, 1) or (H, W, 3) image as an 8- or 16-bit PNG, atomically.
 
-    Values are clipped to [0, 1], sRGB-encoded (``encode="srgb"``, the file is tagged sRGB) or
-    kept linear (``encode="linear"``, for data maps such as (n+1)/2 normals), then rounded to
-    the nearest code. Returns the path.
+    Values are clipped to [0, 1] (``clip="channel"``: each channel on its own; ``"hue"``: as
+    :func:`clip_hue`, for previews of radiance), sRGB-encoded (``encode="srgb"``, the file is
+    tagged sRGB) or kept linear (``encode="linear"``, for data maps such as (n+1)/2 normals), then
+    rounded to the nearest code. Returns the path.
     """
     import mitsuba as mi
 
     _check_colorspace(encode)
     if bits not in (8, 16):
         raise ValueError(f"write_png {path}: bits must be 8 or 16, got {bits}")
+    if clip not in CLIP_MODES:
+        raise ValueError(f"write_png {path}: clip must be one of {CLIP_MODES}, got {clip!r}")
     a = _as_hwc(linear, f"write_png {path}").astype(np.float64)
     if a.shape[2] not in (1, 3):
         raise ValueError(f"write_png {path}: {a.shape[2]} channels; give 1 (grey) or 3 (RGB)")
     if not np.all(np.isfinite(a)):
         raise ValueError(f"write_png {path}: the image has NaN or Inf values")
-    a = np.clip(a, 0.0, 1.0)
+    a = clip_hue(a) if clip == "hue" else np.clip(a, 0.0, 1.0)
     if encode == "srgb":
         a = linear_to_srgb(a).astype(np.float64)
     top = 2 ** bits - 1
@@ -316,7 +333,7 @@ def write_png(path: str | os.PathLike, linear: np.ndarray, encode: str = "srgb",
     bitmap = mi.Bitmap(np.ascontiguousarray(codes), pixel_format=fmt)
     bitmap.set_srgb_gamma(encode == "srgb")
     path = Path(path)
-    with atomic_path(path) as tmp:
+    with reraise_disk_full(path), atomic_path(path) as tmp:
         bitmap.write(str(tmp))
     return path
 

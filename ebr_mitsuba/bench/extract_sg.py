@@ -60,6 +60,45 @@ TEST_SPP = 256
 STUDY_SIZE = 64
 STUDY_GRID = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
 TIMING_SIZE = 256
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Sizes of one run: :data:`FULL` documents the page; :data:`QUICK` is a smoke test of every
+    section (fewer scenes, methods, iterations and study steps; not the documented numbers)."""
+
+    size: int = SIZE
+    real_spp: int = REAL_SPP
+    test_spp: int = TEST_SPP
+    procedural_seeds: tuple = PROCEDURAL_SEEDS
+    real_maps: int = len(REAL_MAPS)
+    iters: int | None = None  # None: the ExtractConfig defaults
+    methods: tuple | None = None  # ablation rows kept (None: all)
+    mode_groups: tuple = ("procedural", "real")  # scene groups of the env_mode comparison
+    study_size: int = STUDY_SIZE
+    study_seeds: tuple = PROCEDURAL_SEEDS
+    study_grid: tuple = STUDY_GRID
+    study_steps: int = len(STUDY_GRID)
+    timing_size: int = TIMING_SIZE
+    timing_iters: int = 400
+
+    def config(self):
+        """The extraction config of the ablation and the study."""
+        from ..extract import ExtractConfig
+
+        if self.iters is None:
+            return ExtractConfig()
+        half = max(self.iters // 2, 1)
+        return ExtractConfig(iters=self.iters, densify_at=(half,), correct_at=(0, half))
+
+
+FULL = Settings()
+QUICK = Settings(
+    size=24, real_spp=16, test_spp=16, procedural_seeds=PROCEDURAL_SEEDS[:1], real_maps=1, iters=16,
+    methods=("quad-tree init only", "+ densification (default)", "Two-Shot baseline (24 Fibonacci, NNLS)"),
+    mode_groups=("procedural",), study_size=16, study_seeds=PROCEDURAL_SEEDS[:1],
+    study_grid=DEFAULT_EXEMPLAR_ROUGHNESS, study_steps=1, timing_size=32, timing_iters=10,
+)
 PEAK_FLOP_PER_CYCLE = 32  # fp32 per core: 2 FMA pipes × 8 lanes × 2 (Zen 4 runs AVX-512 as 2×256 bit)
 
 
@@ -148,11 +187,10 @@ def evaluate(scene: Scene, env, size: int, test_spp: int) -> dict:
     return {"exemplars": ex, "test": _corrected_error(test, scene.test_ref, scene.test_noise2 + n2)}
 
 
-def methods(quick: bool) -> list[tuple[str, object]]:
-    from ..extract import ExtractConfig
-
-    base = ExtractConfig() if not quick else ExtractConfig(iters=60, densify_at=(30,), correct_at=(0, 30))
-    return [
+def methods(settings: Settings = FULL) -> list[tuple[str, object]]:
+    """The ablation rows (name, config; None for the baseline), the default second to last."""
+    base = settings.config()
+    rows = [
         ("random init (+ all stages)", replace(base, init="random")),
         ("quad-tree init only", replace(base, merge=False, optimize=False, densify=False)),
         ("+ merge", replace(base, optimize=False, densify=False)),
@@ -160,6 +198,7 @@ def methods(quick: bool) -> list[tuple[str, object]]:
         ("+ densification (default)", base),
         ("Two-Shot baseline (24 Fibonacci, NNLS)", None),
     ]
+    return rows if settings.methods is None else [r for r in rows if r[0] in settings.methods]
 
 
 def run_method(config, exemplars: np.ndarray):
@@ -173,11 +212,11 @@ def run_method(config, exemplars: np.ndarray):
 # -- the roughness study ----------------------------------------------------------------------------
 
 
-def lighting_error(env, truth, size: int, refs: dict) -> float:
-    """Mean of the 9-roughness exemplar error and the test-material error (fast quadrature)."""
+def lighting_error(env, truth, size: int, refs: dict, grid=STUDY_GRID) -> float:
+    """Mean of the study grid's exemplar error and the test-material error (fast quadrature)."""
     from ..extract.evaluate import quadrature_mean, rel_rmse
 
-    est_ex = quadrature_mean(env, STUDY_GRID, size, seeds=2, seed0=5000)
+    est_ex = quadrature_mean(env, grid, size, seeds=2, seed0=5000)
     est_t = quadrature_mean(env, None, size, seeds=2, seed0=5000)
     return 0.5 * (rel_rmse(est_ex, refs["family"]) + rel_rmse(est_t, refs["test"]))
 
@@ -189,20 +228,20 @@ class _Study:
     """Ground truth of the study: the 9-roughness exemplar family and the test material per
     environment; :meth:`error` extracts from a subset and returns the mean lighting error."""
 
-    def __init__(self, seeds, size: int, config):
+    def __init__(self, seeds, size: int, config, grid=STUDY_GRID):
         from ..extract.evaluate import quadrature_mean
         from ..procedural import make_environment
 
-        self.size, self.config = size, config
+        self.size, self.config, self.grid = size, config, tuple(grid)
         self.envs = [make_environment(s) for s in seeds]
         self.refs = [
             {
-                "family": quadrature_mean(e, STUDY_GRID, size, seeds=4),
+                "family": quadrature_mean(e, self.grid, size, seeds=4),
                 "test": quadrature_mean(e, None, size, seeds=4),
             }
             for e in self.envs
         ]
-        self.index = {r: i for i, r in enumerate(STUDY_GRID)}
+        self.index = {r: i for i, r in enumerate(self.grid)}
 
     def error(self, trial) -> tuple[float, list]:
         from ..extract import extract_sg
@@ -211,17 +250,19 @@ class _Study:
         for env, ref in zip(self.envs, self.refs):
             ex = ref["family"][[self.index[t] for t in trial]]
             res = extract_sg(ex, list(trial), config=self.config)
-            errs.append(lighting_error(res.env, env, self.size, ref))
+            errs.append(lighting_error(res.env, env, self.size, ref, self.grid))
         return float(np.mean(errs)), errs
 
 
-def roughness_study(study: _Study, log) -> list[dict]:
-    """Greedy exemplar selection over :data:`STUDY_GRID` (module docstring)."""
+def roughness_study(study: _Study, log, max_steps: int | None = None) -> list[dict]:
+    """Greedy exemplar selection over the study's grid (module docstring), ``max_steps`` steps
+    at most (default: until the grid is used up)."""
     chosen: list[float] = []
     steps = []
-    while len(chosen) < len(STUDY_GRID):
+    limit = len(study.grid) if max_steps is None else min(max_steps, len(study.grid))
+    while len(chosen) < limit:
         best = None
-        for r in STUDY_GRID:
+        for r in study.grid:
             if r in chosen:
                 continue
             score, errs = study.error(sorted(chosen + [r]))
@@ -471,17 +512,15 @@ def run(out_dir: Path, quick: bool = False) -> Path:
 
         print(msg, file=sys.stderr, flush=True)
 
-    size = 32 if quick else SIZE
-    real_spp, test_spp = (32, 32) if quick else (REAL_SPP, TEST_SPP)
-    seeds = PROCEDURAL_SEEDS[:1] if quick else PROCEDURAL_SEEDS
+    settings = QUICK if quick else FULL
+    size, real_spp, test_spp = settings.size, settings.real_spp, settings.test_spp
     env_dir = shared_data_dir() / "envmaps"
-    maps = [env_dir / m for m in REAL_MAPS if (env_dir / m).is_file()]
-    maps = maps[:1] if quick else maps
+    maps = [env_dir / m for m in REAL_MAPS if (env_dir / m).is_file()][: settings.real_maps]
     scenes = {
-        "procedural": [procedural_scene(s, size, test_spp) for s in seeds],
+        "procedural": [procedural_scene(s, size, test_spp) for s in settings.procedural_seeds],
         "real": [real_scene(p, size, real_spp, test_spp) for p in maps],
     }
-    meths = methods(quick)
+    meths = methods(settings)
     names = [m[0] for m in meths]
     table: dict = {g: {n: [] for n in names} for g in scenes}
     latlong = []
@@ -521,6 +560,8 @@ def run(out_dir: Path, quick: bool = False) -> Path:
             modes[mode] = {g: [{k: r[k] for k in keys} for r in table[g][default_name]] for g in scenes}
             continue
         for group, group_scenes in scenes.items():
+            if group not in settings.mode_groups:
+                continue
             for scene in group_scenes:
                 res = run_method(cfg, scene.exemplars)
                 err = evaluate(scene, res.env, size, test_spp)
@@ -530,16 +571,12 @@ def run(out_dir: Path, quick: bool = False) -> Path:
                     f"{err['test']:.4f}"
                 )
     # roughness study
-    study_cfg = ExtractConfig(iters=60, densify_at=(30,), correct_at=(0, 30)) if quick else ExtractConfig()
-    study_seeds = PROCEDURAL_SEEDS[:1] if quick else PROCEDURAL_SEEDS
-    study_size = 32 if quick else STUDY_SIZE
-    study = _Study(study_seeds, study_size, study_cfg)
-    steps = roughness_study(study, log)
+    study_seeds, study_size = settings.study_seeds, settings.study_size
+    study = _Study(study_seeds, study_size, settings.config(), settings.study_grid)
+    steps = roughness_study(study, log, settings.study_steps)
     issue_error = study.error(list(ISSUE_SET))[0]
-    if quick:
-        steps = steps[:3]
     # timing
-    tsize, titers = (64, 40) if quick else (TIMING_SIZE, 400)
+    tsize, titers = settings.timing_size, settings.timing_iters
     tm = timing(tsize, titers)
     peak, peak_text = cpu_peak()
 
@@ -637,7 +674,7 @@ def run(out_dir: Path, quick: bool = False) -> Path:
     lines += [
         "## 3. Exemplar roughness study (paper §5.3.1)",
         "",
-        f"Greedy selection over {{{', '.join(str(r) for r in STUDY_GRID)}}}, ideal (ground-truth) exemplars "
+        f"Greedy selection over {{{', '.join(str(r) for r in study.grid)}}}, ideal (ground-truth) exemplars "
         "at "
         f"{study_size}², procedural environments {', '.join(str(s) for s in study_seeds)}; the criterion is "
         "the "

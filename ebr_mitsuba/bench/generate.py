@@ -17,10 +17,14 @@
    fit against renders under the map itself, all with Mitsuba's ``envmap`` (fits rasterised at
    1024×512) at the same spp, with the reference's own noise for scale.
 4. **Contact sheet** — 16 samples of ``near_train.toml`` (``ebr dataset sheet``).
+
+Sizes are :data:`FULL` (the documented page); ``run(quick=True)`` uses :data:`QUICK` (32² images,
+one sample per measurement, a 30-iteration fit: a smoke test of the whole page).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import tempfile
@@ -42,6 +46,30 @@ SHEET_RES = 128
 SHEET_DPI = 72  # keeps the PNG in docs/ near 1 MB
 PEER_FIT = "envmaps/physg_envmap3_sg100.npy"
 PEER_MAP = "envmaps/physg_envmap3_venice_sunset_500x250.exr"
+FIT_LOBES = (32, 100)
+FIT_ITERATIONS = 600
+RASTER = (512, 1024)  # the fits rasterised for Mitsuba's envmap
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+    """Sizes of one run (``FULL`` documents the page; ``QUICK`` is a smoke test)."""
+
+    size: int = SIZE
+    throughput_samples: int = THROUGHPUT_SAMPLES
+    error_samples: int = ERROR_SAMPLES
+    fit_lobes: tuple = FIT_LOBES
+    fit_iterations: int = FIT_ITERATIONS
+    fit_res: int = FIT_RES
+    fit_spp: int = FIT_SPP
+    raster: tuple = RASTER
+    sheet_samples: int = SHEET_SAMPLES
+    sheet_res: int = SHEET_RES
+
+
+FULL = Settings()
+QUICK = Settings(size=32, throughput_samples=1, error_samples=1, fit_lobes=(8,), fit_iterations=30,
+                 fit_res=16, fit_spp=16, raster=(64, 128), sheet_samples=4, sheet_res=32)
 
 
 def _near_train_config():
@@ -52,13 +80,13 @@ def _near_train_config():
 
 # -- 1. throughput -------------------------------------------------------------------------------
 
-def throughput(config, samples: int = THROUGHPUT_SAMPLES) -> list[dict]:
+def throughput(config, samples: int = THROUGHPUT_SAMPLES, size: int = SIZE) -> list[dict]:
     import drjit as dr
 
     from ..data.generate import make_sample
     from ..data.sample import Plan
 
-    base = config.with_changes("dataset", resolution=SIZE)
+    base = config.with_changes("dataset", resolution=size)
     spp = base.render.spp
     variants = [("mitsuba", f"spp {spp}", base),
                 ("mitsuba", f"spp {4 * spp}", base.with_changes("render", spp=4 * spp)),
@@ -94,13 +122,11 @@ def _kinds(clean) -> dict:
     return out
 
 
-def fast_vs_mitsuba(config, samples: int = ERROR_SAMPLES) -> list[dict]:
-    import dataclasses
-
+def fast_vs_mitsuba(config, samples: int = ERROR_SAMPLES, size: int = SIZE) -> list[dict]:
     from ..data.renderers import render_clean
     from ..data.sample import Plan, draw_sample
 
-    cfg = config.with_changes("dataset", resolution=SIZE)
+    cfg = config.with_changes("dataset", resolution=size)
     cfg = cfg.with_changes("render", spp=ERROR_SPP_FACTOR * config.render.spp)
     plan = Plan(cfg, {})
     acc: dict[str, dict[str, list]] = {}
@@ -165,7 +191,8 @@ def _crn_render(svbrdf, bsdf, emitter, shot, spp: int, seed: int) -> np.ndarray:
     return np.array(image, dtype=np.float32).reshape(size[0], size[1], -1)[..., :3]
 
 
-def fit_comparison(data_dir: Path, lobes_ours=(32, 100), iterations: int = 600) -> dict:
+def fit_comparison(data_dir: Path, lobes_ours=FIT_LOBES, iterations: int = FIT_ITERATIONS, res: int = FIT_RES,
+                   spp: int = FIT_SPP, raster: tuple = RASTER) -> dict:
     import mitsuba as mi
 
     from ..envfit import fit_error, fit_sg, load_physg_fit, resample_equirect
@@ -183,15 +210,15 @@ def fit_comparison(data_dir: Path, lobes_ours=(32, 100), iterations: int = 600) 
     shot = near_shot(False)
     emitters = {"map": mi.load_dict(envmap_emitter_dict(emap))}
     for name, (env, _) in fits.items():
-        emitters[name] = mi.load_dict(envmap_emitter_dict(sg_to_equirect(env, 512, 1024)))
+        emitters[name] = mi.load_dict(envmap_emitter_dict(sg_to_equirect(env, *raster)))
     render_rows = []
-    for mat_name, svbrdf in _test_materials(FIT_RES):
+    for mat_name, svbrdf in _test_materials(res):
         bsdf = mi.load_dict(svbrdf_bsdf_dict(svbrdf))
-        ref = _crn_render(svbrdf, bsdf, emitters["map"], shot, FIT_SPP, seed=1)
-        ref2 = _crn_render(svbrdf, bsdf, emitters["map"], shot, FIT_SPP, seed=2)
+        ref = _crn_render(svbrdf, bsdf, emitters["map"], shot, spp, seed=1)
+        ref2 = _crn_render(svbrdf, bsdf, emitters["map"], shot, spp, seed=2)
         row = {"material": mat_name, "noise": rel_rms(ref2, ref)}
         for name in fits:
-            row[name] = rel_rms(_crn_render(svbrdf, bsdf, emitters[name], shot, FIT_SPP, seed=1), ref)
+            row[name] = rel_rms(_crn_render(svbrdf, bsdf, emitters[name], shot, spp, seed=1), ref)
         render_rows.append(row)
     return {"map_rows": map_rows, "render_rows": render_rows, "fits": list(fits), "map": PEER_MAP,
             "iterations": iterations}
@@ -199,15 +226,16 @@ def fit_comparison(data_dir: Path, lobes_ours=(32, 100), iterations: int = 600) 
 
 # -- 4. contact sheet --------------------------------------------------------------------------------
 
-def sheet(config, out_png: Path) -> Path:
+def sheet(config, out_png: Path, samples: int = SHEET_SAMPLES, res: int = SHEET_RES) -> Path:
     from ..data.generate import generate
     from ..data.sheet import contact_sheet
 
-    cfg = config.with_changes("dataset", resolution=SHEET_RES).with_count(SHEET_SAMPLES)
+    cfg = config.with_changes("dataset", resolution=res).with_count(samples)
     with tempfile.TemporaryDirectory(prefix="ebr-sheet-") as tmp:
         root = Path(tmp) / "near_train"
-        generate(cfg, root, workers=min(2, os.cpu_count() or 1), progress=False)
-        return contact_sheet(root, out_png, samples=SHEET_SAMPLES, dpi=SHEET_DPI)
+        workers = 1 if samples <= 4 else min(2, os.cpu_count() or 1)  # a pool's start-up is seconds
+        generate(cfg, root, workers=workers, progress=False)
+        return contact_sheet(root, out_png, samples=samples, dpi=SHEET_DPI)
 
 
 # -- the page --------------------------------------------------------------------------------------
@@ -221,34 +249,38 @@ def _data_dir() -> Path | None:
     return path if (path / PEER_FIT).is_file() and (path / PEER_MAP).is_file() else None
 
 
-def run(out_dir: str | os.PathLike = "docs/bench") -> Path:
-    """Run the benchmark and write ``out_dir/generate.md`` (+ the contact sheet); returns the path."""
+def run(out_dir: str | os.PathLike = "docs/bench", quick: bool = False) -> Path:
+    """Run the benchmark and write ``out_dir/generate.md`` (+ the contact sheet); returns the path.
+    ``quick``: :data:`QUICK` sizes (a smoke test; not the documented numbers)."""
     from ..fsutil import atomic_write_text
     from ..variant import ensure_variant
 
     ensure_variant()
+    s = QUICK if quick else FULL
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
     config = _near_train_config()
-    tp = throughput(config)
-    err = fast_vs_mitsuba(config)
+    tp = throughput(config, s.throughput_samples, s.size)
+    err = fast_vs_mitsuba(config, s.error_samples, s.size)
     data_dir = _data_dir()
-    fits = fit_comparison(data_dir) if data_dir is not None else None
-    sheet_png = sheet(config, out / "generate_sheet.png")
+    fits = (fit_comparison(data_dir, s.fit_lobes, s.fit_iterations, s.fit_res, s.fit_spp, s.raster)
+            if data_dir is not None else None)
+    sheet_png = sheet(config, out / "generate_sheet.png", s.sheet_samples, s.sheet_res)
     r = config.render
     lines = [
         "# Data generation: throughput, fast vs Mitsuba, SG fits",
         "",
-        "Generated by `ebr bench generate` (`ebr_mitsuba.bench.generate.run`); do not edit by hand.",
+        "Generated by `ebr bench generate` (`ebr_mitsuba.bench.generate.run`); do not edit by hand."
+        + (" **Quick mode: smoke-test sizes, not the documented numbers.**" if quick else ""),
         f"Machine: {machine()}. Total time {time.perf_counter() - t_start:.0f} s.",
         "",
-        "## Throughput at 256² (per core)",
+        f"## Throughput at {s.size}² (per core)",
         "",
-        f"Config `scenes/near_train.toml` at {SIZE}×{SIZE} (near setup: flash + no-flash photos, a "
+        f"Config `scenes/near_train.toml` at {s.size}×{s.size} (near setup: flash + no-flash photos, a "
         f"flash-only image, {len(config.exemplars.env_roughness)} environment and "
         f"{len(config.exemplars.point_roughness)} point-light exemplars; each photo is a flash render "
-        f"plus an environment render), seed {config.dataset.seed}, samples 1–{THROUGHPUT_SAMPLES} "
+        f"plus an environment render), seed {config.dataset.seed}, samples 1–{s.throughput_samples} "
         "after one warm-up sample, one worker with one Dr.Jit thread (one core), everything a sample "
         "costs included (draw, render, camera simulation, EXR/PNG writing). `--workers N` scales "
         "this by about N on N free cores.",
@@ -263,9 +295,9 @@ def run(out_dir: str | os.PathLike = "docs/bench") -> Path:
         "",
         "## Fast renderer against Mitsuba on the same samples",
         "",
-        f"Samples 0–{ERROR_SAMPLES - 1} of `near_train.toml` at {SIZE}², clean renders (before the camera "
-        f"simulation), Mitsuba `{r.integrator}` at {ERROR_SPP_FACTOR * r.spp} spp ({ERROR_SPP_FACTOR}× the "
-        f"config's, so that the bias estimate is less noisy), fast `sg` and fast "
+        f"Samples 0–{s.error_samples - 1} of `near_train.toml` at {s.size}², clean renders (before the "
+        f"camera simulation), Mitsuba `{r.integrator}` at {ERROR_SPP_FACTOR * r.spp} spp "
+        f"({ERROR_SPP_FACTOR}× the config's, so that the bias estimate is less noisy), fast `sg` and fast "
         f"`quadrature` ({r.fast_spp} directions). Relative RMSE ‖a − b‖/‖b‖ against the Mitsuba render, "
         "RMS over the samples; *noise* is Mitsuba against itself with other seeds; *bias* removes the "
         "noise: sqrt(e² − noise²/2).",
@@ -302,8 +334,9 @@ def run(out_dir: str | os.PathLike = "docs/bench") -> Path:
                          f"{row['log_rmse']:.3f} | {row['energy']:+.3f} | {sec} |")
         lines += [
             "",
-            f"Renders of test materials (near no-flash shot, {FIT_RES}², {FIT_SPP} spp) under each fit "
-            "against the render under the map itself; relative RMSE. The fits are rasterised to 1024×512 "
+            f"Renders of test materials (near no-flash shot, {s.fit_res}², {s.fit_spp} spp) under each fit "
+            f"against the render under the map itself; relative RMSE. The fits are rasterised to "
+            f"{s.raster[1]}×{s.raster[0]} "
             "and rendered with the same `envmap` emitter as the map, by Mitsuba's `direct` integrator with "
             "BSDF sampling only and one seed for all emitters (common random numbers: every render uses "
             "the same directions, so the difference is the lighting's, not noise). *noise* is the "
@@ -319,8 +352,9 @@ def run(out_dir: str | os.PathLike = "docs/bench") -> Path:
     lines += [
         "## Contact sheet",
         "",
-        f"{SHEET_SAMPLES} samples of `near_train.toml` at {SHEET_RES}² (`ebr dataset sheet`): maps, photos "
-        "(8-bit sRGB as stored), the flash-only image and the exemplars (camera units, clipped, sRGB).",
+        f"{s.sheet_samples} samples of `near_train.toml` at {s.sheet_res}² (`ebr dataset sheet`): maps, "
+        "photos (8-bit sRGB as stored), the flash-only image and the exemplars (camera units, clipped, "
+        "sRGB).",
         "",
         f"![contact sheet]({sheet_png.name})",
         "",

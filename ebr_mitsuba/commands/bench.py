@@ -1,6 +1,6 @@
-"""Measure speed against error and write the tables and plots under docs/bench/.
+"""Measure speed against error and write the tables and plots (docs/bench/ in a checkout).
 
-  ebr bench [renderer|generate|extract-sg|estimate|models|all] [--out DIR] [--quick] [--json]
+  ebr bench [renderer|generate|extract-sg|models|all] [--out DIR] [--quick] [--json]
 
 Each benchmark writes ``OUT/<name>.md`` (a Markdown table with the reference it was measured
 against, and the PNG plots it links) and returns its path:
@@ -10,17 +10,19 @@ against, and the PNG plots it links) and returns its path:
 * ``generate``: data-generation samples/s per core for the ``mitsuba`` and ``fast`` renderers, and
   the error of ``fast`` against ``mitsuba`` on the same samples;
 * ``extract-sg``: the SG-extraction ablation, the exemplar roughness study and the timing;
-* ``estimate``: the estimate pipeline's stages, time against re-render error;
 * ``models``: the shipped model against its baselines and ablations on the held-out set, and its
-  training summary (writes ``docs/models.md``; needs the data sets and runs named by
+  training summary (writes ``models.md``; needs the data sets and runs named by
   ``EBR_TRAIN_DATA``, ``EBR_TEST_DATA``, ``EBR_RUNS``).
 
-``--out`` defaults to ``docs/bench`` (``docs`` for ``models``).
+Default ``--out``: inside a checkout of ebr-mitsuba (the current directory or one above it holds
+the project's ``pyproject.toml``) the checkout's ``docs/bench`` (``docs`` for ``models``), the pages
+the documentation links; anywhere else ``./ebr-bench``, so that a run elsewhere never writes into
+the installed package's source tree.
 
-``all`` runs every benchmark this version has. ``--quick`` runs a reduced version (small sizes,
-for smoke tests; its numbers are not the documented ones). ``--json`` prints
-``{"written": {name: path}, "seconds": {name: s}}``. Timings depend on the machine and its load:
-regenerate the pages on a quiet machine.
+``all`` runs every benchmark this version has. ``--quick`` runs a reduced version (small sizes and
+few iterations, under a minute each on two cores: a smoke test; its numbers are not the documented
+ones). ``--json`` prints ``{"written": {name: path}, "seconds": {name: s}}``. Timings depend on the
+machine and its load: regenerate the pages on a quiet machine.
 """
 
 from __future__ import annotations
@@ -31,13 +33,20 @@ import inspect
 import time
 from pathlib import Path
 
+import tomllib
+
 from ..errors import InputError
 from ._common import emit_json, say
 
 NAME = "bench"
-HELP = "measure speed against error; write docs/bench/*.md"
+HELP = "measure speed against error; write the benchmark pages (docs/bench/*.md in a checkout)"
 
+# Every benchmark name the toolkit plans; `available()` is the subset this version has (a module in
+# ebr_mitsuba.bench). Only those are listed in --help: `estimate` arrives with full-resolution
+# estimation.
 BENCHMARKS = ("renderer", "generate", "extract-sg", "estimate", "models")
+OUTSIDE_CHECKOUT = Path("ebr-bench")
+PROJECT = "ebr-mitsuba"
 
 
 def _module_name(name: str) -> str:
@@ -49,27 +58,59 @@ def available() -> list[str]:
     return [b for b in BENCHMARKS if importlib.util.find_spec(_module_name(b)) is not None]
 
 
+def checkout_root(start: Path | None = None) -> Path | None:
+    """The ebr-mitsuba checkout holding ``start`` (default: the current directory): the nearest
+    folder at or above it whose ``pyproject.toml`` names the project ``ebr-mitsuba``; else None."""
+    start = (start or Path.cwd()).resolve()
+    for folder in (start, *start.parents):
+        pyproject = folder / "pyproject.toml"
+        if not pyproject.is_file():
+            continue
+        try:
+            name = tomllib.loads(pyproject.read_text()).get("project", {}).get("name")
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+            continue
+        if name == PROJECT:
+            return folder
+    return None
+
+
+def default_out(name: str, start: Path | None = None) -> Path:
+    """Where benchmark ``name`` writes without ``--out`` (module docstring)."""
+    root = checkout_root(start)
+    if root is None:
+        return OUTSIDE_CHECKOUT
+    module = importlib.import_module(_module_name(name))
+    return root / getattr(module, "DEFAULT_OUT", "docs/bench")
+
+
 def add_arguments(p) -> None:
+    names = (*available(), "all")
     p.add_argument(
         "which",
         nargs="?",
         default="all",
-        choices=(*BENCHMARKS, "all"),
+        metavar="{" + ",".join(names) + "}",
         help="benchmark to run (default: all)",
     )
     p.add_argument(
-        "--out", type=Path, default=None, help="output folder (default docs/bench; docs for 'models')"
+        "--out",
+        type=Path,
+        default=None,
+        help="output folder (default: docs/bench of the checkout you are in, docs for 'models'; "
+        f"./{OUTSIDE_CHECKOUT} outside a checkout)",
     )
-    p.add_argument("--quick", action="store_true", help="reduced sizes, for smoke tests")
+    p.add_argument("--quick", action="store_true", help="reduced sizes, under a minute each: a smoke test")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
 
 
 def run(args) -> int:
-    names = available() if args.which == "all" else [args.which]
-    if args.which != "all" and args.which not in available():
-        raise InputError(
-            f"benchmark '{args.which}' is not in this version; available: {', '.join(available())}"
-        )
+    have = available()
+    if args.which != "all" and args.which not in have:
+        if args.which in BENCHMARKS:
+            raise InputError(f"benchmark '{args.which}' is not in this version; available: {', '.join(have)}")
+        raise InputError(f"unknown benchmark '{args.which}'; choose one of {', '.join(have)} or all")
+    names = have if args.which == "all" else [args.which]
     written, seconds = {}, {}
     for name in names:
         module = importlib.import_module(_module_name(name))
@@ -80,7 +121,7 @@ def run(args) -> int:
         kwargs = {"quick": True} if args.quick and "quick" in inspect.signature(module.run).parameters else {}
         say(f"[bench] {name} ...")
         t0 = time.perf_counter()
-        out = args.out if args.out is not None else Path(getattr(module, "DEFAULT_OUT", "docs/bench"))
+        out = args.out if args.out is not None else default_out(name)
         path = module.run(out, **kwargs)
         seconds[name] = time.perf_counter() - t0
         written[name] = str(path)

@@ -200,14 +200,17 @@ def write_exemplars(out: Path, prediction) -> list[str]:
     fo = getattr(prediction, "flash_only", None)
     if fo is not None:
         items.append(("flash_only", fo))
+    from .report import exemplar_exposure
+
+    items = [(name, np.asarray(img, dtype=np.float32)) for name, img in items]
+    items = [(n, a) for n, a in items if a.ndim == 3 and a.shape[2] in (1, 3) and np.all(np.isfinite(a))]
+    shared = exemplar_exposure([a for n, a in items if n.startswith("exemplar_")])
     files = []
-    for name, img in items:
-        a = np.asarray(img, dtype=np.float32)
-        if a.ndim != 3 or a.shape[2] not in (1, 3) or not np.all(np.isfinite(a)):
-            continue
+    for name, a in items:
         (out / "exemplars").mkdir(exist_ok=True)
         safe = "".join(ch if ch.isalnum() or ch in "._-" else "_" for ch in str(name))
-        preview(out / "exemplars" / f"{safe}.png", a, exposure_of(a))
+        exposure = shared if name.startswith("exemplar_") else exposure_of(a)
+        write_png(out / "exemplars" / f"{safe}.png", a * exposure, clip="hue")
         files.append(f"exemplars/{safe}.png")
     return files
 
