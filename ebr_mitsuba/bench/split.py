@@ -1,0 +1,286 @@
+"""``ebr bench split``: every model and baseline on the fixed test split (DESIGN §6); writes
+``test_split.md`` with ``test_split_maps.png`` (contact sheet) and ``test_split_classes.png``.
+
+The protocol is EBREnv's Table 1, near field: test captures of the real material sets and HDR maps
+of ``scenes/test_split.toml`` (``configs/data_real_test.toml``: Mitsuba, 256 spp, 256²), per-map
+RMSE (normals as (n+1)/2, roughness one channel) and their mean, re-render RMSE and SSIM under 30
+seeded held-out point lights (:mod:`ebr_mitsuba.train.metrics`), per material class, all
+predictors on the same samples and lights:
+
+* the shipped model (``ebr_mitsuba/models``), and every checkpoint named in ``EBR_CANDIDATES``
+  (``name=path`` separated by ``;``: a new model, the previous model, the model without exemplars);
+* the oracle constant: each sample's own ground-truth mean maps
+  (:func:`ebr_mitsuba.train.baselines.oracle_constant`);
+* the training-set mean maps (``EBR_TRAIN_DATA``, when set).
+
+The normal-structure figure is the per-sample spatial standard deviation of the predicted
+normals' x and y components over the truth's (1 = as much structure as the truth).
+
+Inputs: ``EBR_SPLIT_DATA`` names the generated test set (the page's first section has the commands).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ._common import machine
+
+DEFAULT_OUT = "docs"
+QUICK_LIMIT = 2
+THUMB = 96  # contact-sheet thumbnail size
+COLUMNS = ("normal", "diffuse", "roughness", "specular", "mean")
+# EBREnv (Table 1, near field; their test set is MatSynth renders, not this split).
+PAPER_ROW = {"normal": 0.0351, "diffuse": 0.0285, "roughness": 0.0718, "specular": 0.0446,
+             "rerender_rmse": 0.0394}
+REGENERATE = """\
+export EBR_DATA_DIR=../shared/data EBR_SPLIT_DATA=/tmp/ebr-data/real_test \\
+       EBR_TRAIN_DATA=/tmp/ebr-data/real_train
+ebr generate configs/data_real_test.toml --out $EBR_SPLIT_DATA --workers 2
+ebr generate configs/data_real_train.toml --out $EBR_TRAIN_DATA --workers 2   # for the mean-maps baseline
+EBR_CANDIDATES="real=/tmp/ebr-runs/real/model.pt" ebr bench split            # this page"""
+
+
+def unavailable() -> str | None:
+    """Why this benchmark cannot run here (``ebr bench all`` skips it then), or None."""
+    return None if os.environ.get("EBR_SPLIT_DATA") else "set $EBR_SPLIT_DATA; see docs/test_split.md"
+
+
+def _candidates() -> list[tuple[str, Path]]:
+    out = []
+    for spec in filter(None, (s.strip() for s in os.environ.get("EBR_CANDIDATES", "").split(";"))):
+        name, sep, path = spec.partition("=")
+        if not sep or not name or not path:
+            raise InputError(f"EBR_CANDIDATES: {spec!r}; write NAME=CHECKPOINT[;NAME=CHECKPOINT...]")
+        if not Path(path).is_file():
+            raise InputError(f"EBR_CANDIDATES: {path}: no such checkpoint")
+        out.append((name, Path(path)))
+    return out
+
+
+def _normal_spread(maps) -> float:
+    return float(np.mean(maps.normal[..., :2].reshape(-1, 2).std(axis=0)))
+
+
+def _recording(predict, store: list):
+    """Wrap a predictor: keep each estimate's normal spread and a small copy of its maps."""
+    from ..materials import resample_svbrdf
+
+    def run(item, names):
+        est = predict(item, names)
+        store.append((_normal_spread(est), resample_svbrdf(est, THUMB)))
+        return est
+
+    return run
+
+
+def _row(name: str, m: dict, extra: str = "") -> str:
+    pm = m["per_map_rmse"]
+    cells = " | ".join(f"{pm[k]:.4f}" for k in COLUMNS)
+    return f"| {name} | {cells} | {m['rerender_rmse']:.4f} | {m['ssim']:.3f} | {extra} |"
+
+
+def _sheet(truths, rows: dict[str, list], path: Path) -> None:
+    """Contact sheet: per test sample, the truth's maps then each predictor's maps."""
+    from ..imageio import linear_to_srgb, write_png
+
+    def tiles(m):
+        rough = np.repeat(m.roughness[..., None], 3, axis=2)
+        return [(m.normal + 1) / 2, linear_to_srgb(np.clip(m.diffuse, 0, 1)),
+                linear_to_srgb(np.clip(m.specular, 0, 1)), rough]
+
+    gap = 2
+    lines = []
+    for i, truth in enumerate(truths):
+        parts = tiles(truth)
+        for name in rows:
+            parts += [np.ones_like(parts[0])[:, :gap]] + tiles(rows[name][i][1])
+        lines.append(np.concatenate([np.pad(p, ((0, 0), (0, gap), (0, 0)), constant_values=1) for p in parts],
+                                    axis=1))
+        lines.append(np.ones((gap, lines[-1].shape[1], 3)))
+    write_png(path, np.concatenate(lines, axis=0), encode="linear")
+
+
+def _plot_classes(results: dict[str, dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    classes = sorted(next(iter(results.values()))["classes"])
+    fig, ax = plt.subplots(figsize=(9, 3.2))
+    width = 0.8 / len(results)
+    for k, (name, res) in enumerate(results.items()):
+        vals = [res["classes"][c]["per_map_rmse"]["mean"] for c in classes]
+        ax.bar(np.arange(len(classes)) + k * width, vals, width, label=name)
+    ax.set_xticks(np.arange(len(classes)) + 0.4 - width / 2, classes, rotation=30, ha="right", fontsize=8)
+    ax.set_ylabel("mean per-map RMSE")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+
+
+def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Path:
+    """Evaluate every predictor on ``$EBR_SPLIT_DATA`` and write ``out_dir/test_split.md``."""
+    from ..commands._common import progress
+    from ..data.dataset import GeneratedDataset
+    from ..fsutil import atomic_write_text
+    from ..train.baselines import MeanMaps
+    from ..train.evaluate import (
+        _truth,
+        evaluate,
+        group_means,
+        material_class,
+        model_predictor,
+        oracle_predictor,
+    )
+    from ..train.inference import load_model
+
+    data = os.environ.get("EBR_SPLIT_DATA")
+    if not data or not Path(data).is_dir():
+        raise InputError(f"$EBR_SPLIT_DATA = {data!r}: not a data set; make it with the commands in "
+                         f"docs/test_split.md")
+    out_dir = Path(out_dir)
+    limit = QUICK_LIMIT if quick else 0
+    ds = GeneratedDataset(data)
+    n = len(ds) if limit <= 0 else min(limit, len(ds))
+    truth_maps = [_truth(ds[i]) for i in range(n)]
+    truth_spread = [_normal_spread(t) for t in truth_maps]
+
+    predictors = [("shipped model", model_predictor(load_model(None)))]
+    predictors += [(name, model_predictor(load_model(path))) for name, path in _candidates()]
+    predictors.append(("oracle constant", oracle_predictor))
+    train = os.environ.get("EBR_TRAIN_DATA")
+    if train:
+        mean = MeanMaps.from_dataset(train)
+        predictors.append(("training-set mean maps",
+                           lambda item, names: mean.predict(tuple(item["maps"].shape[1:]))))
+
+    t0 = time.perf_counter()
+    results, records = {}, {}
+    for name, predict in predictors:
+        store: list = []
+        log(f"[bench split] {name}")
+        res = evaluate(_recording(predict, store), data, limit=n, seed=0, progress=progress)
+        res["classes"] = group_means(res["per_sample"], material_class)
+        res["normal_structure"] = float(np.mean([s / max(t, 1e-6) for (s, _), t in zip(store, truth_spread)]))
+        results[name], records[name] = res, store
+    seconds = time.perf_counter() - t0
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    _sheet([_small(t) for t in truth_maps], records, out_dir / "test_split_maps.png")
+    _plot_classes(results, out_dir / "test_split_classes.png")
+    page = _page(results, ds, n, seconds, quick)
+    atomic_write_text(out_dir / "test_split.md", page)
+    atomic_write_text(out_dir / "test_split.json", json.dumps(
+        {k: {kk: vv for kk, vv in v.items() if kk != "per_sample"} for k, v in results.items()},
+        indent=1, default=float) + "\n")
+    return out_dir / "test_split.md"
+
+
+def _small(m):
+    from ..materials import resample_svbrdf
+
+    return resample_svbrdf(m, THUMB)
+
+
+def _acceptance(results: dict) -> list[str]:
+    oracle = results["oracle constant"]
+    lines = []
+    for name, res in results.items():
+        if name in ("oracle constant", "training-set mean maps"):
+            continue
+        pm, po = res["per_map_rmse"], oracle["per_map_rmse"]
+        structure = res["normal_structure"]
+        checks = [
+            (f"mean per-map RMSE {pm['mean']:.4f} ≤ 0.045", pm["mean"] <= 0.045),
+            (f"below the oracle constant on the mean ({pm['mean']:.4f} vs {po['mean']:.4f}), diffuse "
+             f"({pm['diffuse']:.4f} vs {po['diffuse']:.4f}) and normal "
+             f"({pm['normal']:.4f} vs {po['normal']:.4f})",
+             pm["mean"] < po["mean"] and pm["diffuse"] < po["diffuse"] and pm["normal"] < po["normal"]),
+            (f"specular RMSE {pm['specular']:.4f} ≤ 0.040", pm["specular"] <= 0.040),
+            (f"re-render RMSE {res['rerender_rmse']:.4f} at least 20 % below the oracle's "
+             f"{oracle['rerender_rmse']:.4f}", res["rerender_rmse"] <= 0.8 * oracle["rerender_rmse"]),
+            (f"normal structure {structure:.2f} ≥ 0.5 of the truth's", structure >= 0.5),
+        ]
+        verdicts = "; ".join(f"{text} — {'yes' if ok else 'no'}" for text, ok in checks)
+        lines.append(f"- **{name}**: {verdicts}")
+    return lines
+
+
+def _page(results: dict, ds, n: int, seconds: float, quick: bool) -> str:
+    from ..data.split import load_split
+
+    split = load_split()
+    head = ("| predictor | normal | diffuse | roughness | specular | mean | re-render | SSIM "
+            "| normal structure |")
+    rule = "|---|---:|---:|---:|---:|---:|---:|---:|---:|"
+    rows = [_row(k, v, f"{v['normal_structure']:.2f}") for k, v in results.items()]
+    paper = " | ".join(f"{PAPER_ROW[k]:.4f}" for k in ("normal", "diffuse", "roughness", "specular"))
+    paper_mean = np.mean([PAPER_ROW[k] for k in ("normal", "diffuse", "roughness", "specular")])
+    rows.append(f"| EBREnv paper, Table 1 near field (MatSynth test set) | {paper} | {paper_mean:.4f} | "
+                f"{PAPER_ROW['rerender_rmse']:.4f} | – | – |")
+    classes = sorted(next(iter(results.values()))["classes"])
+    chead = "| class | n | " + " | ".join(results) + " |"
+    crule = "|---|---:|" + "---:|" * len(results)
+    crows = []
+    for c in classes:
+        first = next(iter(results.values()))["classes"][c]
+        cells = " | ".join(f"{r['classes'][c]['per_map_rmse']['mean']:.4f} / "
+                           f"{r['classes'][c]['rerender_rmse']:.3f}" for r in results.values())
+        crows.append(f"| {c} | {first['n']} | {cells} |")
+    cfg = ds.dataset.get("config", {})
+    render = cfg.get("render", {})
+    res = cfg.get("dataset", {}).get("resolution", "?")
+    lines = [
+        "# The fixed test split: every model against the baselines",
+        "",
+        "Generated by `ebr bench split` (`ebr_mitsuba/bench/split.py`); do not edit by hand.",
+        f"Machine: {machine()}; {time.strftime('%Y-%m-%d')}; evaluation took {seconds:.0f} s"
+        + (f"; **quick run: {n} samples only, not the documented figures**." if quick else "."),
+        "",
+        f"Test split `{split.source}`: {len(split.materials)} real material sets (every class) and "
+        f"{len(split.environments)} HDR maps, never used for training or model selection. Captures: "
+        f"{n} samples of `configs/data_real_test.toml` at {res}², renderer "
+        f"`{render.get('renderer', '?')}` at {render.get('spp', '?')} spp, near flash / no-flash. Metrics as "
+        "EBREnv Table 1: per-map RMSE (normals as (n+1)/2, roughness one channel) and their mean; re-render "
+        "RMSE and SSIM over 30 seeded held-out point lights (seed 0; linear RMSE, SSIM on sRGB-encoded "
+        "clipped renders). Normal structure: predicted normals' spatial spread over the truth's (1 = as "
+        "much as the truth). A model counts as better only on this split, against the baselines in the "
+        "same run.",
+        "",
+        "```",
+        REGENERATE,
+        "```",
+        "",
+        head, rule, *rows,
+        "",
+        "The paper's row is for orientation only: it is measured on another test set (MatSynth renders) with "
+        "paper-size networks trained on a GPU.",
+        "",
+        "## Acceptance figures (issue 15)",
+        "",
+        *_acceptance(results),
+        "",
+        "## By material class (mean per-map RMSE / re-render RMSE)",
+        "",
+        chead, crule, *crows,
+        "",
+        "![mean per-map RMSE by class](test_split_classes.png)",
+        "",
+        "## Contact sheet",
+        "",
+        "Per test sample (rows): the truth's normal, diffuse, specular and roughness, then the same four "
+        f"maps of each predictor in the order {', '.join(results)} ({THUMB}² thumbnails; normals as "
+        "(n+1)/2, albedos sRGB-encoded, roughness linear).",
+        "",
+        "![truth and estimates per test sample](test_split_maps.png)",
+        "",
+    ]
+    return "\n".join(lines)
