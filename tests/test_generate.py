@@ -1,4 +1,7 @@
-"""``ebr generate`` / ``ebr dataset``: config schema, determinism, resume, verify, Ray, Dataset."""
+"""``ebr generate`` / ``ebr dataset``: config schema, determinism, resume, verify, Ray, Dataset.
+
+The Ray path runs against ``tests/fake_ray.py`` by default, against Ray itself with ``-m slow``.
+"""
 
 from __future__ import annotations
 
@@ -465,6 +468,46 @@ def test_ray_missing_is_one_clear_line(reference, tmp_path, capsys, monkeypatch)
     assert rc == 2
     assert "pip install 'ebr-mitsuba[ray]'" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "o").exists()
+
+
+@pytest.fixture
+def fake_ray(monkeypatch):
+    """tests/fake_ray.py as the module ``ray`` (tasks in a spawn process pool), calls recorded afresh."""
+    import fake_ray
+
+    monkeypatch.setitem(sys.modules, "ray", fake_ray)
+    monkeypatch.setattr(fake_ray, "calls", [])
+    yield fake_ray
+    fake_ray.shutdown()  # a test that failed half-way leaves no pool behind
+
+
+def test_ray_path_gives_the_same_files(reference, tmp_path, fake_ray):
+    """The whole --ray path (generate → ray_backend → workers.make_shard in other processes →
+    files written by the driver) with the fake Ray: the reference's bytes (= the pool's, above)."""
+    root_a, cfg_path = reference
+    summary = generate(load_config(cfg_path), tmp_path / "ray", ray="local", workers=2, shard_size=3,
+                       progress=False)
+    assert (summary.backend, summary.generated) == ("ray", COUNT)
+    assert file_hashes(tmp_path / "ray") == file_hashes(root_a)
+    assert fake_ray.calls == [("init", None, 2), ("remote", {"num_cpus": 1, "max_retries": 2}), ("shutdown",)]
+    assert not fake_ray.is_initialized()
+
+
+def test_ray_errors_are_one_line(tmp_path, fake_ray):
+    """A task's error is raised as itself; an address without a cluster is a RuntimeSetupError
+    naming the fix; a cluster the caller initialised is left running."""
+    from ebr_mitsuba.data.ray_backend import run_ray
+    from ebr_mitsuba.errors import RuntimeSetupError
+
+    got = []
+    with pytest.raises(ValueError, match=r"^boom \[(0, 1|2)\]$"):
+        run_ray(fake_ray, "fake://head", fake_ray.failing_task, ("boom",), [0, 1, 2], 2, 1, got.append)
+    assert got == [] and fake_ray.calls[-1] == ("shutdown",)
+    with pytest.raises(RuntimeSetupError, match="--ray 10.0.0.1:1: cannot connect.*ray start --head"):
+        run_ray(fake_ray, "10.0.0.1:1", fake_ray.failing_task, ("x",), [0], 1, 1, got.append)
+    fake_ray.init(num_cpus=1)
+    run_ray(fake_ray, "auto", sorted, (), [2, 1, 0], 2, 1, got.append)
+    assert sorted(got) == [[0], [1, 2]] and fake_ray.is_initialized()
 
 
 @pytest.mark.slow

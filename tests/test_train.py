@@ -217,6 +217,41 @@ def test_resume_continues_bit_exactly(tiny, tmp_path, monkeypatch):
         _train(other, tmp_path / "resumed", resume=True)
 
 
+def test_phases_are_objects_with_explicit_inputs(tiny, tiny_model):
+    """Issue 11.4: each phase carries its inputs (cache, forward, trained modules); the first-stage
+    phases run the cascade with ``refine=False`` — the refinement net is never swapped out, nor run."""
+    from ebr_mitsuba.train import phases as ph
+    from ebr_mitsuba.train.trainer import Trainer
+
+    config = parse_config(_smoke_doc(FIXTURE_CONFIG, tiny), "smoke.toml")
+    trainer = Trainer(config, tiny_model.parent, resume=True)
+    try:
+        cascade = trainer.bundle.cascade
+        refinement, calls = cascade.refinement_net, []
+        refinement.register_forward_hook(lambda *args: calls.append(1))
+        built = {name: trainer.phase(name) for name in PHASES}  # the finished run's caches: no recompute
+        assert [p.name for p in trainer.phases()] == list(PHASES)
+        diffuse, specular = built["diffuse"], built["specular"]
+        assert diffuse.stage_forward is ph.first_stage_forward
+        assert built["refinement"].stage_forward is ph.full_forward
+        assert diffuse.modules == (cascade.diffuse_net,) and built["finetune"].modules == (cascade,)
+        assert diffuse.cache is specular.cache is built["refinement"].cache  # stage 1 loaded once
+        assert (diffuse.size, built["finetune"].size) == (4, 1)  # finetune_samples = 1
+        idx, gen = torch.tensor([0, 1]), torch.Generator().manual_seed(0)
+        with torch.no_grad():
+            loss, parts = specular.loss(cascade, idx, gen)
+            assert set(parts) == {"specular", "roughness"} and torch.isfinite(loss)
+            assert calls == [] and cascade.refinement_net is refinement
+            first = diffuse.forward(cascade, idx)
+            full = built["refinement"].forward(cascade, idx)
+        assert len(calls) == 1 and first.rendered_photos is None and first.maps is first.coarse
+        assert torch.equal(first.coarse.stack(), full.coarse.stack())  # the same first stage
+        with pytest.raises(ValueError, match="no phase 'dualloss' in this run"):
+            trainer.phase("dualloss")
+    finally:
+        trainer.close()
+
+
 def test_cli_train_and_wrong_setup(tiny, tiny5, tmp_path, capsys):
     doc = _smoke_doc("train_tiny.toml", tiny)
     doc["stages"] = {"lighting": 2, "diffuse": 0, "specular": 0, "refinement": 0, "finetune": 0}

@@ -9,9 +9,10 @@
 3. writes ``dataset.json`` and ``config.toml``;
 4. makes every missing sample (:func:`make_sample`: draw → clean renders → camera simulation →
    atomic write) — in this process (``workers=1``), in a ``spawn`` pool of ``workers`` processes,
-   or as Ray tasks of ``shard_size`` samples each (:mod:`.ray_backend`). Every worker renders with
-   one Dr.Jit thread: the renders are then bit-identical whichever worker makes a sample (the fast
-   renderer's scatter-adds depend on the thread count otherwise);
+   or as Ray tasks of ``shard_size`` samples each (:mod:`.ray_backend`), following the worker
+   protocol of :mod:`.workers`. Every worker renders with one Dr.Jit thread: the renders are then
+   bit-identical whichever worker makes a sample (the fast renderer's scatter-adds depend on the
+   thread count otherwise);
 5. writes ``index.json`` and appends the run's wall time to ``timing.json`` (the only file that
    differs between runs).
 
@@ -32,7 +33,8 @@ import numpy as np
 from .. import __version__
 from ..errors import InputError
 from ..fsutil import atomic_write_text, output_lock, remove_stale_temporaries
-from . import store
+from . import ray_backend, store
+from . import workers as workers_mod  # (``workers`` is the worker count here)
 from .camera import camera_units, photo_linear
 from .config import GenerateConfig
 from .renderers import render_clean, shots_of
@@ -135,140 +137,6 @@ def make_sample(plan: Plan, index: int, root: Path) -> Path:
         meta=sample_meta(plan, draw), quantize=cam.quantize)
 
 
-# -- workers ---------------------------------------------------------------------------------------
-
-_WORKER: dict = {}
-PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
-WATCHDOG_SECONDS = 1.0
-
-
-def die_with_parent(parent_pid: int, poll: float = WATCHDOG_SECONDS, use_prctl: bool = True) -> None:
-    """Make this (worker) process end when ``parent_pid`` does, however the parent ends (SIGKILL
-    included): on Linux the kernel sends SIGKILL at the parent's death (``prctl(PR_SET_PDEATHSIG)``);
-    everywhere a daemon thread checks every ``poll`` seconds that the parent is still the parent
-    and exits otherwise (the fallback, and the check for a parent that died before the
-    ``prctl``). Without this a pool's workers, and multiprocessing's resource tracker that waits for
-    them, outlive a killed ``ebr generate`` for as long as their current sample takes.
-    ``use_prctl=False`` leaves the watchdog alone (to test it)."""
-    import signal
-    import sys
-    import threading
-
-    if use_prctl and sys.platform.startswith("linux"):
-        import ctypes
-
-        try:
-            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0)
-        except (OSError, AttributeError):  # pragma: no cover - not glibc: the watchdog remains
-            pass
-    if os.getppid() != parent_pid:
-        os._exit(1)
-
-    def watch() -> None:
-        while True:
-            time.sleep(poll)
-            if os.getppid() != parent_pid:
-                os._exit(1)
-
-    threading.Thread(target=watch, name="ebr-parent-watchdog", daemon=True).start()
-
-
-def init_worker(variant: str, plan: Plan, root: str, parent_pid: int | None = None) -> None:
-    """Per-process set-up of a worker: the variant, one Dr.Jit thread, the plan; a pool worker
-    (``parent_pid`` given) also dies with its parent (:func:`die_with_parent`) and leaves Ctrl-C
-    to it (the parent stops the pool)."""
-    import signal
-
-    import drjit as dr
-
-    from ..variant import ensure_variant
-
-    if parent_pid is not None:  # a pool worker (Ray manages its own workers)
-        die_with_parent(parent_pid)
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-    ensure_variant(variant)
-    dr.set_thread_count(1)
-    _WORKER.update(plan=plan, root=Path(root))
-
-
-def _worker_make(index: int) -> int:
-    make_sample(_WORKER["plan"], index, _WORKER["root"])
-    return index
-
-
-def _run_in_process(plan: Plan, root: Path, todo: list[int], tick) -> None:
-    import drjit as dr
-
-    threads = dr.thread_count()
-    dr.set_thread_count(1)
-    try:
-        for index in todo:
-            make_sample(plan, index, root)
-            tick()
-    finally:
-        dr.set_thread_count(threads)
-
-
-def _stop_workers(timeout: float = 5.0) -> None:
-    """Terminate (then kill) this process's multiprocessing children: the pool's workers."""
-    import multiprocessing as mp
-
-    children = mp.active_children()
-    for p in children:
-        p.terminate()
-    deadline = time.monotonic() + timeout
-    for p in children:
-        p.join(max(0.0, deadline - time.monotonic()))
-        if p.is_alive():
-            p.kill()
-            p.join(1.0)
-
-
-def _quiet_broken_pool_report() -> None:
-    """Python 3.11's executor thread, seeing the workers we stop, tries to fail futures we have
-    already cancelled and dies with an ``InvalidStateError`` traceback on stderr (fixed in later
-    Pythons): the stop is ours and already reported in one line, so that report is dropped."""
-    import threading
-    from concurrent.futures import InvalidStateError
-
-    previous = threading.excepthook
-
-    def hook(args):
-        if args.exc_type is not None and issubclass(args.exc_type, InvalidStateError):
-            return
-        previous(args)
-
-    threading.excepthook = hook
-
-
-def _run_pool(plan: Plan, root: Path, todo: list[int], workers: int, tick) -> None:
-    """A ``spawn`` process pool. ``ProcessPoolExecutor`` (not ``multiprocessing.Pool``): a worker
-    that dies or fails its set-up breaks the pool with an error instead of being respawned forever.
-    Workers die with this process (:func:`die_with_parent`); on any exception here (a worker's
-    error, Ctrl-C, SIGTERM turned into an exception by the CLI) they are terminated at once
-    instead of finishing their current sample."""
-    import multiprocessing as mp
-    from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
-
-    ctx = mp.get_context("spawn")
-    with ProcessPoolExecutor(workers, mp_context=ctx, initializer=init_worker,
-                             initargs=(plan.variant, plan, str(root), os.getpid())) as pool:
-        pending = {pool.submit(_worker_make, index) for index in todo}
-        try:
-            while pending:
-                done, pending = wait(pending, return_when=FIRST_EXCEPTION)
-                for future in done:
-                    future.result()  # re-raises a worker's exception here
-                    tick()
-        except BaseException:
-            _quiet_broken_pool_report()
-            for future in pending:
-                future.cancel()
-            _stop_workers()
-            store.remove_partials(root)  # the stopped workers' half-written samples (we hold the lock)
-            raise
-
-
 # -- the run -----------------------------------------------------------------------------------------
 
 def _check_out(root: Path, config: GenerateConfig, resume: bool) -> None:
@@ -340,21 +208,19 @@ def generate(config: GenerateConfig, out: str | os.PathLike, *, workers: int = 1
         raise InputError(f"--workers must be an integer >= 1 (got {workers!r})")
     if isinstance(shard_size, bool) or not isinstance(shard_size, int) or shard_size < 1:
         raise InputError(f"--shard-size must be an integer >= 1 (got {shard_size!r})")
-    if ray is not None:
-        from .ray_backend import require_ray
-
-        require_ray()  # fail before anything is written
+    ray_module = ray_backend.require_ray() if ray is not None else None  # fail before anything is written
     root = Path(out)
     if root.exists() and not root.is_dir():
         raise InputError(f"{root}: exists and is not a directory; choose another --out")
     with output_lock(root, "ebr generate"):
-        return _generate(config, root, workers=workers, resume=resume, ray=ray, shard_size=shard_size,
-                         progress=progress, say=say)
+        return _generate(config, root, workers=workers, resume=resume, ray=ray, ray_module=ray_module,
+                         shard_size=shard_size, progress=progress, say=say)
 
 
 def _generate(config: GenerateConfig, root: Path, *, workers: int, resume: bool, ray: str | None,
-              shard_size: int, progress: bool, say) -> Summary:
-    """:func:`generate` once the arguments are checked and ``root`` is locked."""
+              ray_module, shard_size: int, progress: bool, say) -> Summary:
+    """:func:`generate` once the arguments are checked and ``root`` is locked (``ray_module``:
+    Ray, imported, when ``ray`` is given)."""
     from tqdm import tqdm
 
     from ..variant import ensure_variant
@@ -378,17 +244,22 @@ def _generate(config: GenerateConfig, root: Path, *, workers: int, resume: bool,
     bar = tqdm(total=len(todo), desc="generate", unit="sample", disable=None if progress else True,
                dynamic_ncols=True, smoothing=0.1)
     t0 = time.perf_counter()
+
+    def collect(shard: list[tuple[int, dict]]) -> None:  # a Ray task's samples
+        for index, files in shard:
+            store.write_files(root, index, files)
+            bar.update(1)
+
     try:
         if not todo:
             pass
         elif ray is not None:
-            from .ray_backend import run_ray
-
-            run_ray(ray, plan, root, todo, shard_size, workers, lambda: bar.update(1))
+            task, shared = workers_mod.make_shard, (plan.variant, make_sample, plan)
+            ray_backend.run_ray(ray_module, ray, task, shared, todo, shard_size, workers, collect)
         elif n_workers == 1:
-            _run_in_process(plan, root, todo, lambda: bar.update(1))
+            workers_mod.run_in_process(make_sample, plan, root, todo, lambda: bar.update(1))
         else:
-            _run_pool(plan, root, todo, n_workers, lambda: bar.update(1))
+            workers_mod.run_pool(make_sample, plan, root, todo, n_workers, lambda: bar.update(1))
     finally:
         bar.close()
     seconds = time.perf_counter() - t0

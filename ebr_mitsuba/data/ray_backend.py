@@ -7,18 +7,20 @@ Ray is the optional extra ``ray`` (``pip install 'ebr-mitsuba[ray]'``); without 
 local head started by ``ray start --head``), ``--ray local`` starts a private local cluster with
 ``--workers`` CPUs. When Ray is already initialised in the calling process, that cluster is used.
 
-Each task (1 CPU) sets the variant and one Dr.Jit thread, makes its shard's samples in a private
-temporary directory with :func:`ebr_mitsuba.data.generate.make_sample`, and returns each sample
-as ``{relative path: bytes}``; the driver writes them atomically into the output directory
-(:func:`ebr_mitsuba.data.store.write_files`), so worker nodes need no shared file system for the
-output. They do need this package and the config's source files (material directories, maps) at
-the same paths. Samples are byte-identical to a local run's.
+Each task (1 CPU, retried twice) runs the callable it is given on its shard — for ``ebr generate``
+:func:`ebr_mitsuba.data.workers.make_shard`, which sets the variant and one Dr.Jit thread, makes
+the shard's samples in a private temporary directory and returns each as ``{relative path:
+bytes}`` — and the driver hands each result to the ``collect`` callable it is given (which writes
+the files atomically into the output directory, :func:`ebr_mitsuba.data.store.write_files`), so
+worker nodes need no shared file system for the output. They do need this package and the
+config's source files (material directories, maps) at the same paths. Samples are byte-identical
+to a local run's. This module imports nothing of the package but its errors; ``tests/fake_ray.py``
+stands in for Ray in ``make test``.
 """
 
 from __future__ import annotations
 
-import tempfile
-from pathlib import Path
+from collections.abc import Callable, Sequence
 
 from ..errors import RuntimeSetupError
 
@@ -35,26 +37,13 @@ def require_ray():
     return ray
 
 
-def _shard_task(variant: str, plan, indices: list[int]) -> list[tuple[int, dict]]:
-    """Ray task body: make ``indices`` and return their files."""
-    from . import generate, store
-
-    if generate._WORKER.get("variant") != variant:
-        generate.init_worker(variant, plan, ".")
-        generate._WORKER["variant"] = variant
-    out = []
-    with tempfile.TemporaryDirectory(prefix="ebr-ray-") as tmp:
-        for index in indices:
-            directory = generate.make_sample(plan, index, Path(tmp))
-            out.append((index, store.read_files(directory)))
-    return out
-
-
-def run_ray(address: str, plan, root: Path, todo: list[int], shard_size: int, workers: int, tick) -> None:
-    """Make the samples ``todo`` as Ray tasks of ``shard_size`` samples; ``tick()`` per sample."""
-    from . import store
-
-    ray = require_ray()
+def run_ray(ray, address: str, task: Callable, shared: tuple, items: Sequence, shard_size: int,
+            workers: int, collect: Callable[[object], None]) -> None:
+    """Run ``task(*shared, shard)`` as one Ray task per shard of ``shard_size`` items; ``collect
+    (result)`` in this process as each task finishes. ``ray``: the Ray module (:func:`require_ray`);
+    ``address``: ``local`` (a private cluster of ``workers`` CPUs) or a cluster address (``auto``:
+    the local head); ``shared`` is put in the object store once. A task's error is re-raised as
+    itself (one line, not Ray's traceback)."""
     started = not ray.is_initialized()
     if started:
         if address == "local":
@@ -66,20 +55,18 @@ def run_ray(address: str, plan, root: Path, todo: list[int], shard_size: int, wo
                 raise RuntimeSetupError(f"--ray {address}: cannot connect to a Ray cluster ({exc}); start "
                                         f"one with 'ray start --head' or use --ray local") from None
     try:
-        task = ray.remote(num_cpus=1, max_retries=2)(_shard_task)
-        plan_ref = ray.put(plan)
-        shards = [todo[i:i + shard_size] for i in range(0, len(todo), shard_size)]
-        pending = [task.remote(plan.variant, plan_ref, shard) for shard in shards]
+        remote = ray.remote(num_cpus=1, max_retries=2)(task)
+        refs = [ray.put(value) for value in shared]
+        shards = [list(items[i:i + shard_size]) for i in range(0, len(items), shard_size)]
+        pending = [remote.remote(*refs, shard) for shard in shards]
         while pending:
             done, pending = ray.wait(pending, num_returns=1)
             try:
-                results = ray.get(done[0])
+                result = ray.get(done[0])
             except ray.exceptions.RayTaskError as exc:  # re-raise the task's own error (one line)
                 cause = getattr(exc, "cause", None)
                 raise (cause if isinstance(cause, Exception) else exc) from None
-            for index, files in results:
-                store.write_files(root, index, files)
-                tick()
+            collect(result)
     finally:
         if started:
             ray.shutdown()

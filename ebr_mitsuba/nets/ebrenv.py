@@ -225,7 +225,7 @@ class Cascade(nn.Module):
                 env_exemplars: torch.Tensor | None = None, point_exemplars: torch.Tensor | None = None,
                 *, render_diffuse_flash: RenderDiffuseFlash | None = None,
                 photos: torch.Tensor | None = None,
-                render_photos: RenderPhotos | None = None) -> CascadeOutput:
+                render_photos: RenderPhotos | None = None, refine: bool = True) -> CascadeOutput:
         """Estimate the maps.
 
         ========================  ====================  =============================================
@@ -240,6 +240,9 @@ class Cascade(nn.Module):
                                                         near_flash_diffuse` or a ``dr.wrap``-ed renderer)
         ``photos``                (B, 3P, H, W)         photos for the refinement (flash, no-flash)
         ``render_photos``         callable              ``maps → (B, 3P, H, W)`` under flash + SGs
+        ``refine``                bool                  False: the first stage alone (the refinement
+                                                        net is not run; ``photos`` and
+                                                        ``render_photos`` are not needed)
         ========================  ====================  =============================================
         """
         c = self.config
@@ -271,7 +274,7 @@ class Cascade(nn.Module):
             parts = [log_nf, log_fo] + ([env_in, point_in] if env_in is not None else [])
             raw = self.joint_net(torch.cat(parts, dim=1))
         coarse = Maps.from_raw(raw)
-        if self.refinement_net is None:
+        if self.refinement_net is None or not refine:
             return CascadeOutput(coarse, coarse, specular_image, None)
         if photos is None or render_photos is None:
             raise InputError("Cascade: photos and render_photos are required with use_refinement=True")

@@ -13,7 +13,8 @@ function of the photos, :func:`.renders.far_flash_only`.)
 
 Arrays are float32, images (K, H, W, 3) as selection returns them; lobes (K, 7). A cache file
 is written atomically and reused when present (``ebr train --resume``); under DDP each rank fills
-its share. :func:`load_cache` stacks the files of samples 0 … N−1 into tensors.
+its share. :func:`load_cache` stacks the files of samples 0 … N−1 into tensors; :class:`RunCaches`
+is a run's pair of caches, each filled and loaded when a phase first asks for it.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import numpy as np
 import torch
 
 from ..fsutil import atomic_path
+from . import ddp
 
 
 def cache_file(root: Path, stage: str, index: int) -> Path:
@@ -102,4 +104,47 @@ def load_cache(root: Path, stage: str, indices) -> dict:
     return out
 
 
-__all__ = ["cache_file", "fill_stage1", "fill_stage2", "load_cache"]
+class RunCaches:
+    """The caches of one run under ``root`` (``--out``) for ``data`` and ``config`` (a
+    :class:`.config.TrainConfig`: selection and extraction options, ``finetune_samples``).
+
+    :meth:`stage1` and :meth:`stage2` fill their cache (this rank's share of the samples, files
+    already there skipped; then a barrier) on the first call, load it and keep it for later calls.
+    ``progress``: a tqdm-like factory for the filling (None: no bars).
+    """
+
+    def __init__(self, root: Path, data, config, dist: ddp.DistInfo, progress=None):
+        self.root, self.data, self.config, self.dist, self.progress = Path(root), data, config, dist, progress
+        self._loaded: dict[str, dict] = {}
+
+    def stage1(self) -> dict:
+        """The stage-1 selections of every sample."""
+        if "stage1" not in self._loaded:
+            n, select = len(self.data), self.config.select_config()
+            fill_stage1(self.root, self.data, ddp.share(range(n), self.dist), select, self.progress)
+            ddp.barrier(self.dist)
+            self._loaded["stage1"] = load_cache(self.root, "stage1", range(n))
+        return self._loaded["stage1"]
+
+    def stage2(self, bundle) -> dict:
+        """Stage 2 of the first ``finetune_samples`` samples, from ``bundle``'s lighting net as it
+        is at the first call (put in eval mode)."""
+        if "stage2" not in self._loaded:
+            c = self.config
+            m = min(len(self.data), c.stages.finetune_samples)
+            bundle.train(False)
+            fill_stage2(
+                self.root,
+                self.data,
+                ddp.share(range(m), self.dist),
+                bundle,
+                c.select_config(),
+                c.extract_config(),
+                self.progress,
+            )
+            ddp.barrier(self.dist)
+            self._loaded["stage2"] = load_cache(self.root, "stage2", range(m))
+        return self._loaded["stage2"]
+
+
+__all__ = ["RunCaches", "cache_file", "fill_stage1", "fill_stage2", "load_cache"]

@@ -60,6 +60,11 @@ def barrier(info: DistInfo) -> None:
         dist.barrier()
 
 
+def share(indices, info: DistInfo) -> list[int]:
+    """This rank's share of ``indices``: the entries r, r + W, … (all of them in one process)."""
+    return [i for k, i in enumerate(indices) if k % info.world == info.rank]
+
+
 def wrap(module: torch.nn.Module, info: DistInfo, device: torch.device) -> torch.nn.Module:
     """DDP around ``module`` (its trainable parameters as they are now) when distributed."""
     if not info.active:
@@ -82,4 +87,4 @@ def shutdown(info: DistInfo) -> None:
         dist.destroy_process_group()
 
 
-__all__ = ["DistInfo", "all_mean", "barrier", "init_distributed", "local_device", "shutdown", "wrap"]
+__all__ = ["DistInfo", "all_mean", "barrier", "init_distributed", "local_device", "share", "shutdown", "wrap"]

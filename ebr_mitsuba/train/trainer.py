@@ -51,6 +51,11 @@ over at step 0, with or without ``--resume``; one with a checkpoint needs ``--re
 else is refused. **Determinism**: :func:`deterministic` (Dr.Jit on one thread, deterministic
 CUDA kernels) around the run; same seed, machine, torch thread count and world size give the
 same bits. Only rank 0 prints.
+
+**Structure.** Each phase is a small object of :mod:`.phases` (its inputs, cache and forward are
+constructor arguments; its loss one method); the caches are a :class:`.cache.RunCaches`, filled
+when a phase first needs them; a resume hands its :class:`ResumePoint` to the phase it continues.
+The trainer owns the loop: optimiser, learning rate, sample order, logging and checkpoints.
 """
 
 from __future__ import annotations
@@ -62,22 +67,22 @@ import math
 import os
 import shutil
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 
 from ..errors import InputError
 from ..fsutil import OutputLock, atomic_write_text, is_temporary, remove_stale_temporaries
-from ..nets import Maps
-from ..nets.losses import MapWeights, parameter_l1, rendering_loss, sample_view_light_pairs
-from ..nets.transforms import log_input
-from . import cache, ddp
+from ..nets.losses import MapWeights
+from . import ddp
 from .bundle import DataFacts, build_bundle, net_configs
+from .cache import RunCaches
 from .checkpoint import load_checkpoint, save_checkpoint
 from .config import PHASES, TrainConfig
 from .data import CAPTURE_SHOTS, load_training_data
 from .inference import pick_device
-from .renders import cascade_forward
+from .phases import Phase, PhaseInputs, PhasePlan, build_phase, plan_phases
 
 CSV_FIELDS = ("phase", "step", "loss", "terms", "lr", "samples_per_s", "seconds")
 START_FILES = frozenset({"config.json", "log.csv", "cache"})
@@ -118,15 +123,30 @@ def deterministic(cuda: bool = False):
         torch.use_deterministic_algorithms(algorithms[0], warn_only=algorithms[1])
 
 
-@contextlib.contextmanager
-def _first_stage_only(cascade):
-    """Run the cascade without its refinement net (phases that train the first stage)."""
-    saved = cascade.refinement_net
-    cascade.refinement_net = None
-    try:
-        yield
-    finally:
-        cascade.refinement_net = saved
+@dataclass(frozen=True)
+class ResumePoint:
+    """Where ``--resume`` continues inside a phase: the checkpoint's phase, step (the next step
+    to run), the phase's elapsed seconds, optimizer state and generator states, and the sample
+    order ``(permutation, position)`` (None in a checkpoint of an older version)."""
+
+    phase: str
+    step: int
+    seconds: float
+    optimizer: dict
+    rng: dict
+    order: tuple[torch.Tensor, int] | None
+
+    @classmethod
+    def from_checkpoint(cls, data: dict) -> ResumePoint:
+        step, rng = data["step"], data["rng"]
+        return cls(
+            step["phase"],
+            int(step["step"]),
+            float(step.get("seconds", 0.0)),
+            data["optimizer"],
+            rng,
+            (rng["perm"], rng["pos"]) if "perm" in rng else None,
+        )
 
 
 class Trainer:
@@ -166,13 +186,19 @@ class Trainer:
             config.data.train, config.data.max_samples, self.progress if self.dist.main else None
         )
         self.state = {"phase": None, "step": 0, "done": [], "seconds": 0.0}
-        self.resume_data = None
-        self._resume_order = None
+        self._resume: ResumePoint | None = None  # set by _load_resume, handed to its phase
         self.summary: dict = {"phases": {}}
         self._prepare_out()
-        self.weights = MapWeights(
-            config.loss.normal, config.loss.diffuse, config.loss.specular, config.loss.roughness
+        self.inputs = PhaseInputs(
+            self.data,
+            self.device,
+            self.capture,
+            self.facts.flash_intensity,
+            MapWeights(config.loss.normal, config.loss.diffuse, config.loss.specular, config.loss.roughness),
+            config.loss,
         )
+        bar = self.progress if self.dist.main else None
+        self.caches = RunCaches(self.out, self.data, config, self.dist, bar)
 
     def close(self) -> None:
         """Release the lock of ``--out`` (also done when :meth:`run` ends or fails)."""
@@ -238,7 +264,7 @@ class Trainer:
             self.out.mkdir(parents=True, exist_ok=True)
             remove_stale_temporaries(self.out)  # what killed atomic writes left (we hold the lock)
             atomic_write_text(self.out / "config.json", json.dumps(self.config.to_dict(), indent=1) + "\n")
-            self._write_log_rows(self._kept_log_rows() if self.resume_data is not None else [])
+            self._write_log_rows(self._kept_log_rows() if self._resume is not None else [])
         ddp.barrier(self.dist)
 
     def _old_config(self) -> dict | None:
@@ -256,7 +282,7 @@ class Trainer:
             )
         self.bundle.load_state(data["model"], str(last))
         self.state = {"seconds": 0.0, **data["step"]}
-        self.resume_data = data
+        self._resume = ResumePoint.from_checkpoint(data)
         if isinstance(data.get("summary"), dict):  # the phases finished before the checkpoint
             self.summary = data["summary"]
         else:  # a checkpoint of an older version: the phases of a finished run's summary.json
@@ -296,25 +322,18 @@ class Trainer:
 
     # -- phases -------------------------------------------------------------------------------
 
-    def phases(self) -> list[tuple[str, int, list[torch.nn.Module], float]]:
-        """(name, steps, trainable modules, initial lr) in order; phases with nothing to train dropped."""
-        c, t = self.config, self.config.train
-        if c.kind == "dualloss":
-            return [("dualloss", t.steps, [self.bundle.dualloss], t.lr)]
-        cas = self.bundle.cascade
-        out = [("lighting", c.stages.lighting, [self.bundle.lighting], t.lr)]
-        if cas.joint_net is not None:
-            out.append(("diffuse", c.stages.diffuse, [cas.joint_net], t.lr))
-        else:
-            out += [
-                ("diffuse", c.stages.diffuse, [cas.diffuse_net], t.lr),
-                ("specular", c.stages.specular, [cas.specular_net], t.lr),
-            ]
-        if cas.refinement_net is not None:
-            out.append(("refinement", c.stages.refinement, [cas.refinement_net], t.lr))
-        if c.stages.finetune > 0 and c.stages.finetune_samples > 0:
-            out.append(("finetune", c.stages.finetune, [cas], c.stages.finetune_lr))
-        return [p for p in out if p[1] > 0]
+    def phases(self) -> list[PhasePlan]:
+        """The run's phases in order (:func:`.phases.plan_phases`); phases with nothing to train dropped."""
+        return plan_phases(self.config, self.bundle)
+
+    def phase(self, name: str) -> Phase:
+        """The phase ``name`` of this run, built with its inputs; a cascade phase fills (this
+        rank's share) and loads its cache first if no phase did yet."""
+        plan = next((p for p in self.phases() if p.name == name), None)
+        if plan is None:
+            names = ", ".join(p.name for p in self.phases())
+            raise ValueError(f"Trainer.phase: no phase {name!r} in this run; it has {names}")
+        return build_phase(plan, self.inputs, self.bundle, self.caches)
 
     def run(self) -> dict:
         """Train every phase not done yet, write ``model.pt`` and ``summary.json``; returns the
@@ -327,11 +346,14 @@ class Trainer:
 
     def _run(self) -> dict:
         t_start = time.perf_counter()
-        for index, (name, steps, modules, lr0) in enumerate(self.phases()):
-            if name in self.state.get("done", []):
+        for index, plan in enumerate(self.phases()):
+            if plan.name in self.state.get("done", []):
                 continue
-            self._prepare_phase(name)
-            self._run_phase(index, name, steps, modules, lr0)
+            phase = self.phase(plan.name)
+            resume, self._resume = self._resume, None  # only the first phase run can continue it
+            if resume is not None and resume.phase != plan.name:
+                resume = None  # the checkpoint ended its phase: this one starts at step 0
+            self._run_phase(index, phase, resume)
         if self.dist.main:
             self._save(self.out / "model.pt")
             # training time summed over the phases, so a resumed (or re-exported) run keeps its total
@@ -344,35 +366,6 @@ class Trainer:
         ddp.barrier(self.dist)
         return self.summary
 
-    def _my_indices(self, indices) -> list[int]:
-        return [i for k, i in enumerate(indices) if k % self.dist.world == self.dist.rank]
-
-    def _prepare_phase(self, name: str) -> None:
-        c = self.config
-        if c.kind != "ebrenv" or name == "lighting":
-            return
-        n = len(self.data)
-        bar = self.progress if self.dist.main else None
-        if name in ("diffuse", "specular", "refinement"):
-            if not hasattr(self, "stage1") and c.cascade_config().use_exemplars:
-                cache.fill_stage1(self.out, self.data, self._my_indices(range(n)), c.select_config(), bar)
-                ddp.barrier(self.dist)
-                self.stage1 = cache.load_cache(self.out, "stage1", range(n))
-        elif name == "finetune":
-            m = min(n, c.stages.finetune_samples)
-            self.bundle.train(False)
-            cache.fill_stage2(
-                self.out,
-                self.data,
-                self._my_indices(range(m)),
-                self.bundle,
-                c.select_config(),
-                c.extract_config(),
-                bar,
-            )
-            ddp.barrier(self.dist)
-            self.stage2 = cache.load_cache(self.out, "stage2", range(m))
-
     def _freeze(self, modules) -> None:
         for net in self.bundle.nets().values():
             net.requires_grad_(False)
@@ -381,32 +374,27 @@ class Trainer:
             m.requires_grad_(True)
             m.train(True)
 
-    def _run_phase(self, index: int, name: str, steps: int, modules, lr0: float) -> None:
+    def _run_phase(self, index: int, phase: Phase, resume: ResumePoint | None) -> None:
+        """Train ``phase`` (the ``index``-th of the run: seeds its generators) from step 0, or
+        from ``resume`` (a checkpoint inside this phase)."""
         t = self.config.train
-        self._freeze(modules)
-        params = [p for m in modules for p in m.parameters()]
-        opt = torch.optim.Adam(params, lr=lr0, weight_decay=t.weight_decay)
+        name, steps = phase.name, phase.steps
+        self._freeze(phase.modules)
+        params = [p for m in phase.modules for p in m.parameters()]
+        opt = torch.optim.Adam(params, lr=phase.lr, weight_decay=t.weight_decay)
         order_gen = torch.Generator().manual_seed(t.seed * 1000 + index)
         loss_gen = torch.Generator().manual_seed(t.seed * 1000 + 500 + index)
         start = 0
-        if self.resume_data is not None and self.state.get("phase") == name:
-            start = int(self.state["step"])
-            opt.load_state_dict(self.resume_data["optimizer"])
-            order_gen.set_state(self.resume_data["rng"]["order"])
-            loss_gen.set_state(self.resume_data["rng"]["loss"])
-            rng = self.resume_data["rng"]
-            self._resume_order = (rng["perm"], rng["pos"]) if "perm" in rng else None
-        self.resume_data = None
-        top = (
-            self.bundle.lighting
-            if name == "lighting"
-            else (self.bundle.dualloss if name == "dualloss" else self.bundle.cascade)
-        )
-        model = ddp.wrap(top, self.dist, self.device)
-        n_data = len(self.stage2["flash_only"]) if name == "finetune" else len(self.data)
+        if resume is not None:
+            start = resume.step
+            opt.load_state_dict(resume.optimizer)
+            order_gen.set_state(resume.rng["order"])
+            loss_gen.set_state(resume.rng["loss"])
+        model = ddp.wrap(phase.top, self.dist, self.device)
+        n_data = phase.size
         batch = min(t.batch_size, n_data)
-        if start > 0 and self._resume_order is not None:
-            perm, pos = self._resume_order
+        if start > 0 and resume.order is not None:
+            perm, pos = resume.order
         else:
             perm, pos = torch.randperm(n_data, generator=order_gen), 0
         bar = (
@@ -414,12 +402,12 @@ class Trainer:
             if (self.progress and self.dist.main)
             else None
         )
-        elapsed = float(self.state.get("seconds", 0.0)) if start > 0 else 0.0  # before the resume
+        elapsed = resume.seconds if start > 0 else 0.0  # before the resume
         t0 = time.perf_counter() - elapsed
         seen, last_log = 0, time.perf_counter()
         loss_value, terms = float("nan"), {}
         for step in range(start, steps):
-            lr = cosine_lr(step, steps, lr0, t.lr_final)
+            lr = cosine_lr(step, steps, phase.lr, t.lr_final)
             for g in opt.param_groups:
                 g["lr"] = lr
             if pos + batch * self.dist.world > n_data:
@@ -427,7 +415,7 @@ class Trainer:
             chunk = perm[pos : pos + batch * self.dist.world]
             pos += batch * self.dist.world
             idx = chunk[self.dist.rank :: self.dist.world]
-            loss, parts = self._loss(name, model, idx, loss_gen)
+            loss, parts = self._loss(phase, model, idx, loss_gen)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             opt.step()
@@ -500,96 +488,9 @@ class Trainer:
         }
         save_checkpoint(path, payload)
 
-    # -- losses -------------------------------------------------------------------------------
-
-    def _target(self, idx) -> Maps:
-        return Maps.unstack(self.data.maps[idx].to(self.device))
-
-    def _loss(self, name: str, model, idx: torch.Tensor, gen: torch.Generator):
-        d, dev = self.data, self.device
-        if name == "lighting":
-            out = model(d.shots(idx, CAPTURE_SHOTS[self.capture]).to(dev))
-            ex = (log_input(out.exemplars) - log_input(d.env_exemplars[idx].to(dev))).abs().mean()
-            fo = (log_input(out.flash_only) - log_input(d.flash_only_of(idx).to(dev))).abs().mean()
-            return ex + fo, {"exemplars": ex, "flash_only": fo}
-        target = self._target(idx)
-        if name == "dualloss":
-            pred = model(d.photos[idx].to(dev))
-            loss, parts = parameter_l1(pred, target, self.weights)
-            if self.config.loss.render > 0:
-                from ..nets.drwrap import point_light_renderer
-
-                pairs = sample_view_light_pairs(
-                    len(idx),
-                    gen,
-                    self.config.loss.render_pairs,
-                    self.config.loss.render_highlights,
-                    device=dev,
-                )
-                r = rendering_loss(pred, target, pairs, point_light_renderer(self.facts.flash_intensity))
-                loss, parts = loss + self.config.loss.render * r, {**parts, "render": r}
-            return loss, parts
-        out = self._cascade(name, model, idx)
-        if name in ("diffuse", "specular"):
-            m, joint = out.coarse, self.bundle.cascade.joint_net is not None
-            keys = (
-                ("normal", "diffuse", "specular", "roughness")
-                if joint
-                else (("normal", "diffuse") if name == "diffuse" else ("specular", "roughness"))
-            )
-            parts = {k: (getattr(m, k) - getattr(target, k)).abs().mean() for k in keys}
-            return sum(getattr(self.weights, k) * v for k, v in parts.items()), parts
-        loss, parts = parameter_l1(out.maps, target, self.weights)
-        if name == "finetune":
-            coarse, _ = parameter_l1(out.coarse, target, self.weights)
-            loss, parts = loss + coarse, {**parts, "coarse": coarse}
-        if self.config.loss.render > 0:
-            from ..nets import torch_brdf as tb
-
-            pairs = sample_view_light_pairs(
-                len(idx), gen, self.config.loss.render_pairs, self.config.loss.render_highlights, device=dev
-            )
-            r = rendering_loss(
-                out.maps,
-                target,
-                pairs,
-                lambda m, cam, light: tb.render_point_light(m, light, self.facts.flash_intensity, cam),
-            )
-            loss, parts = loss + self.config.loss.render * r, {**parts, "render": r}
-        return loss, parts
-
-    def _cascade(self, name: str, model, idx: torch.Tensor):
-        d, dev = self.data, self.device
-        noflash = d.photos[idx, d.shot("noflash")].to(dev)
-        photos = d.shots(idx, CAPTURE_SHOTS[self.capture]).to(dev)
-        far_fo = d.far_flash_only(idx).to(dev) if self.capture == "near-far" else None
-        if name == "finetune":
-            src = self.stage2
-            flash_only = src["flash_only"][idx].to(dev)
-            lobes = [src["sg"][int(i)].to(dev) for i in idx]
-        else:
-            src = getattr(self, "stage1", None)
-            flash_only = d.flash_only_of(idx).to(dev)
-            lobes = [lb.to(dev) for lb in d.lobes(idx)]
-        env_ex = src["env_images"][idx].to(dev) if src is not None and "env_images" in src else None
-        point_ex = src["point_images"][idx].to(dev) if src is not None and "point_images" in src else None
-        ctx = (
-            _first_stage_only(self.bundle.cascade)
-            if name in ("diffuse", "specular")
-            else contextlib.nullcontext()
-        )
-        with ctx:
-            return cascade_forward(
-                model,
-                noflash,
-                flash_only,
-                env_ex,
-                point_ex,
-                photos,
-                lobes,
-                self.facts.flash_intensity,
-                far_fo,
-            )
+    def _loss(self, phase: Phase, model, idx: torch.Tensor, gen: torch.Generator):
+        """One step's loss and per-term values (:meth:`.phases.Phase.loss`)."""
+        return phase.loss(model, idx, gen)
 
 
-__all__ = ["PHASES", "Trainer", "cosine_lr"]
+__all__ = ["PHASES", "ResumePoint", "Trainer", "cosine_lr"]
