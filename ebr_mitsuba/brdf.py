@@ -1,4 +1,4 @@
-"""The SVBRDF of DESIGN §3, written once in Dr.Jit.
+"""The SVBRDF of ``docs/conventions.md`` ("BRDF"), written once in Dr.Jit.
 
 ``f(l, v) = d/π + D(h) F(v·h) G(l, v) / (4 (n·l)(n·v))`` with
 
@@ -24,9 +24,10 @@ import math
 
 import drjit as dr
 
+from .colour import LUMINANCE_WEIGHTS
+from .floors import GGX_D_FLOOR, NORMAL_Z_MIN, ROUGHNESS_MIN, SMITH_FLOOR
 from .sg import coordinate_frame
 
-ROUGHNESS_MIN = 0.03
 INV_PI = 1.0 / math.pi
 FRESNEL_MODES = ("schlick", "none")
 
@@ -38,7 +39,8 @@ def alpha_from_roughness(r):
 
 
 def luminance(c):
-    return 0.2126 * c.x + 0.7152 * c.y + 0.0722 * c.z
+    wr, wg, wb = LUMINANCE_WEIGHTS
+    return wr * c.x + wg * c.y + wb * c.z
 
 
 def ggx_d(n, h, alpha):
@@ -47,7 +49,7 @@ def ggx_d(n, h, alpha):
     x = dr.cross(n, h)
     a2 = alpha * alpha
     den = dr.squared_norm(x) + a2 * c * c
-    return dr.select(c > 0.0, a2 * INV_PI / dr.maximum(den * den, 1e-38), 0.0)
+    return dr.select(c > 0.0, a2 * INV_PI / dr.maximum(den * den, GGX_D_FLOOR), 0.0)
 
 
 def _lambda_term(c, alpha):
@@ -57,12 +59,12 @@ def _lambda_term(c, alpha):
 
 def smith_vis(cl, cv, alpha):
     """G₁(l)G₁(v) / (4 (n·l)(n·v)) for exact separable Smith–GGX (stable at grazing angles)."""
-    return 1.0 / dr.maximum(_lambda_term(cl, alpha) * _lambda_term(cv, alpha), 1e-30)
+    return 1.0 / dr.maximum(_lambda_term(cl, alpha) * _lambda_term(cv, alpha), SMITH_FLOOR)
 
 
 def smith_g1(c, alpha):
     """Exact Smith–GGX masking G₁ = 2c / (c + √(α² + (1−α²)c²))."""
-    return 2.0 * c / dr.maximum(_lambda_term(c, alpha), 1e-30)
+    return 2.0 * c / dr.maximum(_lambda_term(c, alpha), SMITH_FLOOR)
 
 
 def fresnel_schlick(f0, cos_vh):
@@ -146,7 +148,7 @@ def vndf_pdf(n, l, v, alpha):
     ``D(h) G₁(v) / (4 (n·v)) = D(h) / (2 (c_v + √(α² + (1−α²)c_v²)))``."""
     h = dr.normalize(l + v)
     cv = dr.maximum(dr.dot(n, v), 0.0)
-    val = ggx_d(n, h, alpha) / (2.0 * dr.maximum(_lambda_term(cv, alpha), 1e-30))
+    val = ggx_d(n, h, alpha) / (2.0 * dr.maximum(_lambda_term(cv, alpha), SMITH_FLOOR))
     return dr.select((dr.dot(n, v) > 0.0) & (dr.dot(n, l) > 0.0), val, 0.0)
 
 
@@ -191,7 +193,7 @@ def brdf_sample(n, v, diffuse, specular, roughness, sample1, sample2, fresnel: s
 
 def perturbed_normal(normal_map_value):
     """Unit shading normal from a tangent-space normal-map value; the z component is clamped from
-    below (1e-4) before normalising so exactly tangent normals stay finite."""
+    below (NORMAL_Z_MIN) before normalising so exactly tangent normals stay finite."""
     V = type(normal_map_value)
-    nz = dr.maximum(normal_map_value.z, 1e-4)
+    nz = dr.maximum(normal_map_value.z, NORMAL_Z_MIN)
     return dr.normalize(V(normal_map_value.x, normal_map_value.y, nz))

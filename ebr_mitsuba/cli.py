@@ -1,9 +1,9 @@
 """The ``ebr`` command line: one entry point, one module per subcommand in
 :mod:`ebr_mitsuba.commands`.
 
-Conventions (DESIGN §4): ``--json`` prints a machine-readable summary on stdout, human output and
-progress bars go to stderr; exit 0 on success, 2 on bad input (an :class:`EbrError`, printed as one
-line), 1 on an internal error.
+Conventions (``docs/conventions.md``, "Command line"): ``--json`` prints a machine-readable summary
+on stdout, human output and progress bars go to stderr; exit 0 on success, 2 on bad input (an
+:class:`EbrError`, printed as one line), 1 on an internal error.
 
 Global options (before or after the subcommand): ``--variant`` (:mod:`ebr_mitsuba.variant`) and
 ``--deterministic`` (one Dr.Jit thread, so identical reruns give identical bytes; also

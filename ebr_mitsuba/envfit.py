@@ -10,8 +10,9 @@ with ``ŷ_t = Σ_k G_k(ω_t)``, ``ε = 0.01 ×`` the solid-angle weighted mean r
 ``log_weight``. The linear term fits the energy that dominates renders (sun, windows); the log
 term keeps the dim sky and ground from being ignored. Parameters are unconstrained for Adam
 (Dr.Jit ``dr.opt.Adam``): the axis as a free 3-vector (normalised in the model), ``log λ`` and
-``log μ``. The sum over lobes is one flat kernel over (lobe, texel) pairs with one
-``scatter_reduce`` into the texels (NOTES: a per-lobe Python loop is far slower in reverse mode).
+``log μ`` (:mod:`ebr_mitsuba.sgparams`, λ unbounded). The sum over lobes is one flat kernel over
+(lobe, texel) pairs with one ``scatter_reduce`` into the texels (a per-lobe Python loop of
+gathers is far slower in reverse mode: ``docs/conventions.md``, "Dr.Jit on the CPU").
 
 Initialisation is greedy matching pursuit on the resampled map (:func:`greedy_init`): each new
 lobe is centred near the brightest remaining cells, moved to the local mode of the residual
@@ -21,7 +22,7 @@ sphere with a small amplitude. Deterministic: no random numbers.
 
 Resampling (:func:`resample_equirect`): the map is area-averaged (radiance weighted by solid
 angle) to ``height × 2·height`` cells; each cell's direction is the centre of its footprint in the
-source map's parameterisation (rows align-corners, DESIGN / :mod:`ebr_mitsuba.envmap`), its weight
+source map's parameterisation (rows align-corners, :mod:`ebr_mitsuba.envmap`), its weight
 the footprint's exact solid angle. The fit runs at ``height`` (default 64), the error is reported
 at ``eval_height`` (default 128):
 
@@ -51,12 +52,13 @@ from pathlib import Path
 
 import numpy as np
 
+from . import sgparams
+from .colour import LUMINANCE
 from .envmap import EquirectMap, equirect_solid_angles, map_to_world, uv_to_direction
 from .errors import ConfigError, InputError
 from .imageio import resize_area
 from .sgenv import SGEnvironment
 
-LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 DEFAULT_LOBES = 32
 DEFAULT_ITERATIONS = 400
 DEFAULT_HEIGHT = 64
@@ -307,19 +309,18 @@ def _adam(cells: Cells, init: SGEnvironment, iterations: int, lr: float, log_wei
     texel = idx - lobe * n
     pair_dirs = dr.gather(mi.Vector3f, dirs, texel)
 
-    a = init.axis
-    m = np.log(np.maximum(init.amplitude.astype(np.float64), 1e-30)).astype(np.float32)
+    # sharpness unbounded (sgparams docstring): sky lobes of real maps go below the extraction's 0.5
+    a, s, m = sgparams.encode(init.axis, init.sharpness, init.amplitude, bounded=False)
     opt = dr.opt.Adam(lr=lr, params={
         "axis": mi.Vector3f(a[:, 0], a[:, 1], a[:, 2]),
-        "log_sharpness": mi.Float(np.log(init.sharpness).astype(np.float32)),
+        "log_sharpness": mi.Float(s),
         "log_amplitude": mi.Color3f(m[:, 0], m[:, 1], m[:, 2]),
     })
     opt.set_learning_rate(axis=lr * 0.5)
 
     def model():
         axis = dr.normalize(opt["axis"])
-        lam = dr.exp(opt["log_sharpness"])
-        amp = dr.exp(opt["log_amplitude"])
+        lam, amp = sgparams.dr_decode(opt["log_sharpness"], opt["log_amplitude"], bounded=False)
         ax = dr.gather(mi.Vector3f, axis, lobe)
         lam_p = dr.gather(mi.Float, lam, lobe)
         amp_p = dr.gather(mi.Color3f, amp, lobe)
@@ -343,8 +344,7 @@ def _adam(cells: Cells, init: SGEnvironment, iterations: int, lr: float, log_wei
             if progress is not None:
                 progress(it, value)
     axis = dr.normalize(opt["axis"]).numpy().T.astype(np.float64)
-    lam = np.exp(opt["log_sharpness"].numpy().astype(np.float64))
-    amp = np.exp(opt["log_amplitude"].numpy().T.astype(np.float64))
+    lam, amp = sgparams.decode(opt["log_sharpness"].numpy(), opt["log_amplitude"].numpy().T, bounded=False)
     env = SGEnvironment(axis, np.maximum(lam, 1e-6), amp)
     return env, history
 

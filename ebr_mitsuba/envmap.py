@@ -1,6 +1,6 @@
 """Equirectangular environment maps in Mitsuba's ``envmap`` convention, in our z-up world.
 
-The one direction ↔ uv convention of the toolkit (DESIGN §3; measured in NOTES and tested
+The one direction ↔ uv convention of the toolkit (``docs/conventions.md``, "Spherical Gaussians"; tested
 against Mitsuba's own ``envmap.eval`` in ``tests/test_io.py``):
 
 * **Mitsuba's envmap frame** (y-up): uv = (u, v) ∈ [0, 1]², φ = 2πu, θ = πv, direction

@@ -1,4 +1,5 @@
-"""Capture geometry (DESIGN §3): the sample square, the pixel grid and the camera/light setups.
+"""Capture geometry (``docs/conventions.md``, "Geometry and pixel grid"): the sample square, the
+pixel grid and the camera/light setups.
 
 The sample is the square [-1,1]² in the plane z = 0 (normal +z, tangent +x, bitangent +y, world
 z-up). Pixel (row i from the top, column j) of an H×W image sees ``x = −1 + (2j+1)/W``,
@@ -21,7 +22,7 @@ NEAR_FOV = 45.0
 FAR_FOV = math.degrees(2.0 * math.atan(0.1))
 DEFAULT_FLASH_INTENSITY = 10.0  # W/sr of the isotropic flash; recorded in capture.json
 SETUPS = ("near", "near-far", "five-light", "multi-view")
-# Roughness of the exemplar materials (diffuse 0.1, specular 0.2; DESIGN §1): the default of
+# Roughness of the exemplar materials (:mod:`ebr_mitsuba.exemplar`): the default of
 # `ebr exemplars`, of data configs and of the demo, chosen from the roughness study of
 # docs/bench/extract_sg.md §3 (`ebr bench extract-sg`).
 DEFAULT_EXEMPLAR_ROUGHNESS = (0.1, 0.3, 0.6, 0.9)
@@ -46,7 +47,7 @@ class Shot:
     extra: dict = field(default_factory=dict)
 
     def in_sample_grid(self) -> bool:
-        """True when pixel (i, j) of this shot sees the grid point of DESIGN §3 (fronto-parallel,
+        """True when pixel (i, j) of this shot sees the grid point of the module docstring (fronto-parallel,
         centred, framing exactly [-1,1]²)."""
         cx, cy, cz = self.camera
         half = cz * math.tan(math.radians(self.fov) / 2)

@@ -1,4 +1,4 @@
-"""Image files in and out: EXR, Radiance HDR, PNG and JPEG (DESIGN §3 "Images").
+"""Image files in and out: EXR, Radiance HDR, PNG and JPEG (``docs/conventions.md``, "Images and units").
 
 Every image crossing this boundary is a **linear float32 numpy array of shape (H, W, C)**, row 0
 at the top; C = 3 for RGB and C = 1 for one channel (grey, roughness, luminance). Alpha is never
@@ -394,3 +394,26 @@ def resize_area(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
         raise ValueError(f"resize_area: image has shape {a.shape}; expected (H, W) or (H, W, C)")
     out = _area_axis(_area_axis(a, h, 0), w, 1)  # accumulates in float64
     return out.astype(np.float32)
+
+
+def upsample_bilinear(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """(h, w) or (h, w, C) → ``size = (H, W)`` by linear interpolation between pixel centres (edges
+    clamped), in the image's dtype: the smooth upsampling of correction fields and map detail."""
+    height, width = (int(v) for v in size)
+    h, w = image.shape[:2]
+    ys = np.clip((np.arange(height) + 0.5) * h / height - 0.5, 0.0, h - 1.0)
+    xs = np.clip((np.arange(width) + 0.5) * w / width - 0.5, 0.0, w - 1.0)
+    y0, x0 = np.floor(ys).astype(int), np.floor(xs).astype(int)
+    y1, x1 = np.minimum(y0 + 1, h - 1), np.minimum(x0 + 1, w - 1)
+    trail = (None,) * (image.ndim - 2)
+    fy, fx = (ys - y0)[(slice(None), None, *trail)], (xs - x0)[(None, slice(None), *trail)]
+    top = image[y0][:, x0] * (1 - fx) + image[y0][:, x1] * fx
+    bottom = image[y1][:, x0] * (1 - fx) + image[y1][:, x1] * fx
+    return (top * (1 - fy) + bottom * fy).astype(image.dtype)
+
+
+def box3(image: np.ndarray) -> np.ndarray:
+    """3×3 box filter of an (h, w, C) image, edges clamped."""
+    p = np.pad(image, ((1, 1), (1, 1), (0, 0)), mode="edge")
+    h, w = image.shape[:2]
+    return sum(p[i : i + h, j : j + w] for i in range(3) for j in range(3)) / 9.0

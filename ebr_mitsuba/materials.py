@@ -1,6 +1,6 @@
 """Material directories and imported texture sets → :class:`~ebr_mitsuba.svbrdf.SVBRDF`.
 
-Material directory (DESIGN §3 "Maps")
+Material directory (``docs/conventions.md``, "Maps")
 -------------------------------------
 ==================  ==========================================================================
 file                content

@@ -4,7 +4,7 @@ Nothing here imports Dr.Jit: this module is the independent yardstick that the D
 (:mod:`ebr_mitsuba.brdf`, :mod:`ebr_mitsuba.sg`, :mod:`ebr_mitsuba.stable`) and the renderers are
 tested against. It is written for clarity, not speed (a Python loop over points, dense grids).
 
-Conventions (DESIGN §3)
+Conventions (``docs/conventions.md``)
 -----------------------
 * All directions are unit 3-vectors (``(..., 3)`` arrays) in the tangent frame of the sample,
   which for the planar sample is also the world frame: geometric normal ``+z``, tangent ``+x``.
@@ -66,7 +66,8 @@ from functools import lru_cache
 
 import numpy as np
 
-ROUGHNESS_MIN = 0.03
+from .floors import ROUGHNESS_MIN
+
 INV_PI = 1.0 / math.pi
 TWO_PI = 2.0 * math.pi
 

@@ -10,7 +10,7 @@ undefined or unused ``$parameter`` or a bad value is a :class:`ConfigError`.
 :mod:`ebr_mitsuba.scenes` (through ``importlib.resources``); :func:`resolve_scene_path` accepts
 a file or a bundled scene's bare name.
 
-Scene-dictionary builders (DESIGN §3)
+Scene-dictionary builders (``docs/conventions.md``, "Geometry and pixel grid")
 -------------------------------------
 =========================  ========================================================================
 builder                    what it returns

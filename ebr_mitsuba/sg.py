@@ -1,9 +1,10 @@
 """Spherical-Gaussian math in Dr.Jit: the one implementation used by the ``sgenvmap`` emitter, the
 fast renderer and SG extraction.
 
-Convention (DESIGN §3): ``G(ω) = μ · exp(λ (ξ·ω − 1))`` with amplitude μ (RGB, ≥ 0), unit axis ξ
-(world, z-up) and sharpness λ > 0. Every function takes Dr.Jit arrays (any backend): axes and
-directions as 3-vectors, λ as a float array, μ as a 3-vector (or a float array).
+Convention (``docs/conventions.md``, "Spherical Gaussians"): ``G(ω) = μ · exp(λ (ξ·ω − 1))`` with
+amplitude μ (RGB, ≥ 0), unit axis ξ (world, z-up) and sharpness λ > 0. Every function takes Dr.Jit
+arrays (any backend): axes and directions as 3-vectors, λ as a float array, μ as a 3-vector (or a
+float array).
 
 Stable forms used throughout: ``exp(λ(cos − 1))``; integrals via ``−expm1(−2λ)/λ``; products with the
 exponent ``−λ₁λ₂‖ξ₁−ξ₂‖²/(λₘ+λ₁+λ₂)``; vMF sampling ``cos θ = 1 + log1p(u·expm1(−2λ))/λ``.

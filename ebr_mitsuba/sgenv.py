@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .colour import LUMINANCE
 from .errors import InputError
 from .fsutil import atomic_write_text
 
@@ -79,7 +80,7 @@ class SGEnvironment:
         """Per-lobe integral ∫G dω, luminance-weighted (K,): used to pick lobes when sampling."""
         lam = self.sharpness.astype(np.float64)
         integ = 2 * np.pi * (-np.expm1(-2 * lam)) / lam
-        lum = self.amplitude.astype(np.float64) @ np.array([0.2126, 0.7152, 0.0722])
+        lum = self.amplitude.astype(np.float64) @ LUMINANCE
         return integ * lum
 
     def eval(self, directions: np.ndarray) -> np.ndarray:

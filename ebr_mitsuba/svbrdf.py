@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .errors import InputError
+from .exemplar import EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR
 
 MAP_NAMES = ("normal", "diffuse", "specular", "roughness")
 
@@ -76,9 +77,10 @@ class SVBRDF:
         return int(self.normal.shape[0]), int(self.normal.shape[1])
 
     @staticmethod
-    def uniform(height: int, width: int, diffuse=0.1, specular=0.2, roughness=0.5, normal=(0, 0, 1)):
-        """A spatially constant material (exemplar material by default values of DESIGN §3
-        apart from roughness)."""
+    def uniform(height: int, width: int, diffuse=EXEMPLAR_DIFFUSE, specular=EXEMPLAR_SPECULAR, roughness=0.5,
+                normal=(0, 0, 1)):
+        """A spatially constant material (by default the exemplar material of
+        :mod:`ebr_mitsuba.exemplar`, roughness 0.5)."""
         def rgb(v):
             return np.broadcast_to(np.asarray(v, np.float32).reshape(-1)[:3] if np.ndim(v) else
                                    np.full(3, v, np.float32), (height, width, 3)).copy()

@@ -36,6 +36,7 @@ import numpy as np
 import tomllib
 
 from .errors import ConfigError, InputError
+from .metrics import rel_rmse
 
 VIEW_DISTANCE = 2.14
 DEFAULT_SPP = 131072
@@ -207,7 +208,7 @@ def fast_radiance(scene: PlaneScene, pts: np.ndarray, cams: np.ndarray, mode: st
 def _builtin_bsdf(scene: PlaneScene) -> dict:
     import mitsuba as mi
 
-    from .brdf import ROUGHNESS_MIN
+    from .floors import ROUGHNESS_MIN
 
     r = min(max(scene.roughness, ROUGHNESS_MIN), 1.0)
     if float(scene.diffuse.max()) > 0.5:
@@ -258,9 +259,8 @@ def _scene_dict(bsdf: dict, emitter: dict, scene: PlaneScene) -> dict:
 def _row(name, reference, a, b_est, noise, budget, seconds, extra=None) -> dict:
     ref = b_est
     diff = a - ref
-    denom = float(np.sqrt(np.mean(ref**2)))
     finite = bool(np.all(np.isfinite(a)) and np.all(np.isfinite(ref)))
-    rel = float(np.sqrt(np.mean(diff**2)) / max(denom, 1e-12)) if finite else float("inf")
+    rel = rel_rmse(a, ref)
     tol = 3.0 * noise + budget
     # Systematic part of the difference: what remains after removing the expected noise energy.
     excess = math.sqrt(max(rel * rel - noise * noise, 0.0)) if finite else float("inf")

@@ -1,4 +1,5 @@
-"""The ``sgenvmap`` emitter: an environment made of spherical Gaussians (DESIGN §3).
+"""The ``sgenvmap`` emitter: an environment made of spherical Gaussians (``docs/conventions.md``,
+"Spherical Gaussians").
 
 Registered by :func:`ebr_mitsuba.ensure_variant`, or by ``import ebr_mitsuba`` after
 ``mi.set_variant``; the class derives from the variant's ``mi.Emitter``, so this module is

@@ -25,8 +25,9 @@ COMPONENT_DIFFUSE = 1
 
 
 class SVBRDFBSDF(mi.BSDF):
-    r"""Diffuse + GGX microfacet reflection with texture maps (DESIGN §3, :mod:`ebr_mitsuba.brdf`):
-    ``f(l, v) = d/π + D(h) F(v·h) G(l, v) / (4 (n·l)(n·v))``, α = r², r clamped to [0.03, 1].
+    r"""Diffuse + GGX microfacet reflection with texture maps (``docs/conventions.md``, "BRDF";
+    :mod:`ebr_mitsuba.brdf`): ``f(l, v) = d/π + D(h) F(v·h) G(l, v) / (4 (n·l)(n·v))``, α = r², r
+    clamped to [0.03, 1].
 
     .. list-table::
        :header-rows: 1
@@ -110,7 +111,8 @@ class SVBRDFBSDF(mi.BSDF):
 
     ``mi.load_dict``: ``{"type": "svbrdf", "normal": {"type": "bitmap", "data":
     mi.TensorXf(n_hw3), "raw": True}, "roughness": 0.3}``. Note that a bitmap's row 0 is v = 0
-    (see NOTES: it appears flipped vertically on the sample plane).
+    (``docs/conventions.md``, "Geometry and pixel grid": it appears flipped vertically on the
+    sample plane).
     """
 
     def __init__(self, props):

@@ -1,4 +1,20 @@
-"""Shared fixtures: one Mitsuba variant for the whole session, data-dir lookup, fixed seeds."""
+"""Shared fixtures: one Mitsuba variant for the whole session, data-dir lookup, fixed seeds, and the
+tiny generated data sets (each generated once per test run).
+
+============  ======================================  ================================================
+fixture       config                                  content
+============  ======================================  ================================================
+``tiny``      ``configs/data_tiny.toml``              4 near samples at 32², fast renderer
+``tiny_nf``   ``configs/data_tiny_near_far.toml``     4 near-far samples (four shots) at 32²
+``tiny5``     ``configs/data_tiny_five_light.toml``   4 five-light samples at 32²
+============  ======================================  ================================================
+
+The data sets are shared by every test of the session: read them, never change them. A test that
+damages, extends or resumes a data set works on a copy (``shutil.copytree(tiny, tmp_path / ...)``).
+
+``EBR_REQUIRE_VARIANT=1`` (set by ``.ci/run``) turns "no usable Mitsuba variant" from a skip of
+every test into an error of every test, so that CI cannot pass without running anything.
+"""
 
 from __future__ import annotations
 
@@ -8,17 +24,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+
 
 @pytest.fixture(scope="session", autouse=True)
 def variant():
     """Select the variant once (``EBR_VARIANT`` or ``llvm_ad_rgb``) and register our plugins;
-    skip everything when the machine cannot run it."""
+    skip everything when the machine cannot run it (fail everything under
+    ``EBR_REQUIRE_VARIANT=1``)."""
     from ebr_mitsuba import ensure_variant
     from ebr_mitsuba.errors import RuntimeSetupError
 
     try:
         name = ensure_variant()
     except RuntimeSetupError as exc:  # pragma: no cover - machine dependent
+        if os.environ.get("EBR_REQUIRE_VARIANT") == "1":
+            pytest.fail(f"no usable Mitsuba variant here (EBR_REQUIRE_VARIANT=1): {exc}", pytrace=False)
         pytest.skip(f"no usable Mitsuba variant here: {exc}")
     import drjit as dr
 
@@ -51,3 +72,31 @@ def one_torch_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(previous)
+
+
+def generate_tiny(config: str, out: Path, count: int | None = None) -> Path:
+    """Generate ``configs/<config>`` (optionally only ``count`` samples) into ``out``."""
+    from ebr_mitsuba.data.config import load_config
+    from ebr_mitsuba.data.generate import generate
+
+    cfg = load_config(CONFIGS / config)
+    generate(cfg if count is None else cfg.with_count(count), out, progress=False)
+    return out
+
+
+@pytest.fixture(scope="session")
+def tiny(tmp_path_factory) -> Path:
+    """``configs/data_tiny.toml`` (module docstring: shared, read-only)."""
+    return generate_tiny("data_tiny.toml", tmp_path_factory.mktemp("tiny") / "data")
+
+
+@pytest.fixture(scope="session")
+def tiny_nf(tmp_path_factory) -> Path:
+    """``configs/data_tiny_near_far.toml`` (module docstring: shared, read-only)."""
+    return generate_tiny("data_tiny_near_far.toml", tmp_path_factory.mktemp("tiny_nf") / "data")
+
+
+@pytest.fixture(scope="session")
+def tiny5(tmp_path_factory) -> Path:
+    """``configs/data_tiny_five_light.toml`` (module docstring: shared, read-only)."""
+    return generate_tiny("data_tiny_five_light.toml", tmp_path_factory.mktemp("tiny5") / "data")

@@ -1,4 +1,4 @@
-"""Scene builders and Mitsuba captures: the pixel ↔ surface mapping of DESIGN §3, the flash
+"""Scene builders and Mitsuba captures: the pixel ↔ surface mapping of docs/conventions.md, the flash
 decomposition flash − noflash = flash-only, and the files and metadata each setup writes."""
 
 from __future__ import annotations
@@ -307,6 +307,19 @@ def test_bundled_xml_matches_scene_builders(default_env, name, shot_index):
     diff = xml[0] - ours[0]
     assert np.mean(diff**2) < 1.5 * var
     assert abs(diff.mean()) < 4 * math.sqrt(var / diff.size)
+
+
+def test_bundled_exemplar_scene_uses_the_exemplar_material():
+    """scenes/exemplar.xml writes the exemplar material as literals; they are the constants of
+    :mod:`ebr_mitsuba.exemplar`."""
+    import xml.etree.ElementTree as ET
+
+    from ebr_mitsuba.exemplar import EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR
+    from ebr_mitsuba.scene import bundled_scene
+
+    bsdf = ET.parse(bundled_scene("exemplar")).getroot().find("./shape/bsdf[@type='svbrdf']")
+    values = {e.get("name"): e.get("value") for e in bsdf.findall("rgb")}
+    assert float(values["diffuse"]) == EXEMPLAR_DIFFUSE and float(values["specular"]) == EXEMPLAR_SPECULAR
 
 
 def test_load_scene_converts_python_parameters():

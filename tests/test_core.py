@@ -439,7 +439,7 @@ def _hemisphere_integral(n, v, d, s, r, fresnel="schlick") -> np.ndarray:
 def test_brdf_energy():
     """White furnace with n = +z. Diffuse 1 / specular 0 integrates to 1 (1e-5) with F = s
     (``fresnel="none"``); with Schlick, F₀ = 0 still reflects at grazing half-vector angles and the
-    DESIGN model does not weight the diffuse term by (1 − F), so the total exceeds 1 away from
+    BRDF of docs/conventions.md does not weight the diffuse term by (1 − F), so the total exceeds 1 away from
     normal incidence (measured 1.00003 at 0°, 1.004 at 45°, 1.10 at 80°, 1.15 at 89°): pinned to
     [1, 1.2]. Specular 1 / diffuse 0: ≤ 1 + 1e-5 and ≥ 0.3 (single-scattering GGX loses energy
     at high roughness: measured 0.307 … 1.0); at normal incidence ≥ 0.9999 for r ≤ 0.03, and

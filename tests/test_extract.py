@@ -174,7 +174,8 @@ def test_mirror_axis_is_the_reflected_view():
 
 
 def test_extract_reproduces_a_procedural_environment():
-    from ebr_mitsuba.extract.evaluate import quadrature_mean, rel_rmse
+    from ebr_mitsuba.extract.evaluate import quadrature_mean
+    from ebr_mitsuba.metrics import rel_rmse
     from ebr_mitsuba.procedural import make_environment
 
     env = make_environment(2)

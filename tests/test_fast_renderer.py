@@ -79,7 +79,8 @@ def test_point_light_matches_analytic_value():
 
 def test_pixel_mapping_follows_design_grid():
     """A bright texel at (row 2, col 5) (top-left quadrant) shows at that pixel; a light up and to
-    the right (+x, +y) makes the top-right corner the brightest (DESIGN §3 orientation)."""
+    the right (+x, +y) makes the top-right corner the brightest (docs/conventions.md, "Geometry
+    and pixel grid")."""
     h = w = 16
     diffuse = np.zeros((h, w, 3), np.float32)
     diffuse[2, 5] = 1.0

@@ -55,17 +55,6 @@ WRITERS = ["generate", "estimate", "train"]
 # -- helpers ------------------------------------------------------------------------------------------
 
 
-@pytest.fixture(scope="module")
-def tiny(tmp_path_factory) -> Path:
-    """configs/data_tiny.toml (4 samples at 32², fast renderer)."""
-    from ebr_mitsuba.data.config import load_config
-    from ebr_mitsuba.data.generate import generate
-
-    out = tmp_path_factory.mktemp("tiny") / "data"
-    generate(load_config(CONFIGS / "data_tiny.toml"), out, progress=False)
-    return out
-
-
 def alive(pid: int) -> bool:
     try:
         state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]

@@ -281,7 +281,8 @@ def _local_si(n, wi_np, uv=(0.5, 0.5)):
 
 
 def _builtin_reference(normal, diffuse, specular, roughness):
-    """Mitsuba's normalmap(blendbsdf(0.5, diffuse(2d), roughconductor(GGX, F=2s))) (NOTES)."""
+    """Mitsuba's normalmap(blendbsdf(0.5, diffuse(2d), roughconductor(GGX, F=2s)))
+    (docs/conventions.md, "Dr.Jit and Mitsuba on the CPU")."""
     encoded = (np.asarray(normal, np.float32) + 1.0) / 2.0
     return mi.load_dict({
         "type": "normalmap",
@@ -430,7 +431,8 @@ def test_white_furnace(integrator):
 
 def _rasterise_for_envmap(env, width=256, height=128):
     """The environment as a Mitsuba ``envmap`` bitmap (+Y up, rows align-corners, columns at
-    texel centres; NOTES), to be used with ``to_world = rotate(x, 90°)`` (local +Y → world +Z)."""
+    texel centres; :mod:`ebr_mitsuba.envmap`), to be used with ``to_world = rotate(x, 90°)``
+    (local +Y → world +Z)."""
     u = (np.arange(width) + 0.5) / width
     v = np.arange(height) / (height - 1)
     phi, theta = np.meshgrid(2 * np.pi * u, np.pi * v)

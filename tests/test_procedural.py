@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from ebr_mitsuba.colour import LUMINANCE
 from ebr_mitsuba.errors import InputError
 from ebr_mitsuba.procedural import (
     ENV_KINDS,
@@ -33,7 +34,6 @@ from ebr_mitsuba.procedural.noise import fbm, gradient_noise, grid, value_noise,
 from ebr_mitsuba.procedural.normals import normals_from_height, normals_to_slopes, slopes_to_normals
 from ebr_mitsuba.svbrdf import SVBRDF
 
-LUMA = np.array([0.2126, 0.7152, 0.0722])
 DIELECTRIC = ("tiles", "wood", "leather", "plaster", "fabric", "marble")
 
 
@@ -95,7 +95,7 @@ def test_physical_statistics():
 def test_families_differ():
     """Per-family statistics (mean over seeds 0–2 at 64²) differ pairwise by ≥ 0.05 somewhere."""
     def features(m: SVBRDF) -> np.ndarray:
-        lum = m.diffuse @ LUMA
+        lum = m.diffuse @ LUMINANCE
         chroma = (m.diffuse.max(-1) - m.diffuse.min(-1)).mean()
         return np.array([lum.mean(), lum.std(), chroma, m.specular.mean(), m.roughness.mean(),
                          m.roughness.std(), m.normal[..., :2].std()])
@@ -295,7 +295,7 @@ def _reference_irradiance(env) -> float:
         sin_t = np.sqrt(np.clip(1 - cos_t ** 2, 0, None))
         wz = cos_t[:, None] * axis[2] + sin_t[:, None] * (np.cos(phi) * t1[2] + np.sin(phi) * t2[2])
         inner = np.clip(wz, 0, None).sum(axis=1) * (2 * np.pi / 1024)
-        total += float(np.sum(ws * np.exp(-lam * s) * inner)) * float(amp @ LUMA)
+        total += float(np.sum(ws * np.exp(-lam * s) * inner)) * float(amp @ LUMINANCE)
     return total
 
 

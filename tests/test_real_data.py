@@ -154,7 +154,7 @@ def test_center_square_crop_of_a_non_square_set():
 
 
 def test_oracle_constant_is_the_truths_mean_and_scores_its_spread():
-    from ebr_mitsuba.estimate.metrics import map_rmse
+    from ebr_mitsuba.metrics import map_rmse
     from ebr_mitsuba.svbrdf import SVBRDF
     from ebr_mitsuba.train.baselines import oracle_constant
 

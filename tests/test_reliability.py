@@ -51,17 +51,6 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")  # conftest: torch on o
 # -- helpers ------------------------------------------------------------------------------------------
 
 
-@pytest.fixture(scope="module")
-def tiny(tmp_path_factory) -> Path:
-    """configs/data_tiny.toml: 4 samples at 32², fast renderer (seconds)."""
-    from ebr_mitsuba.data.config import load_config
-    from ebr_mitsuba.data.generate import generate
-
-    out = tmp_path_factory.mktemp("tiny") / "data"
-    generate(load_config(CONFIGS / "data_tiny.toml"), out, progress=False)
-    return out
-
-
 def train_doc(data: Path, **stages) -> dict:
     """configs/train_tiny.toml cut down: lighting 2 steps, other phases as given (default 0)."""
     doc = tomllib.loads((CONFIGS / "train_tiny.toml").read_text())
@@ -339,7 +328,7 @@ def test_worker_dies_with_its_parent(tmp_path, use_prctl):
     ready = tmp_path / "ready"
     child = textwrap.dedent(f"""
         import os, pathlib, time
-        from ebr_mitsuba.data.generate import die_with_parent
+        from ebr_mitsuba.data.workers import die_with_parent
         die_with_parent(os.getppid(), poll=0.2, use_prctl={use_prctl})
         pathlib.Path({str(ready)!r}).write_text(str(os.getpid()))
         time.sleep(60)
@@ -387,13 +376,13 @@ def test_stopping_the_pool_terminates_its_workers():
     the workers at once instead of letting them finish their samples."""
     import multiprocessing as mp
 
-    from ebr_mitsuba.data import generate as gen
+    from ebr_mitsuba.data import workers
 
     ctx = mp.get_context("spawn")
     sleepers = [ctx.Process(target=time.sleep, args=(60,)) for _ in range(2)]
     for p in sleepers:
         p.start()
-    gen._stop_workers(timeout=5.0)
+    workers.stop_workers(timeout=5.0)
     assert not any(p.is_alive() for p in sleepers) and not mp.active_children()
 
 

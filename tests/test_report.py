@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from ebr_mitsuba.cli import main
+from ebr_mitsuba.colour import LUMINANCE
 from ebr_mitsuba.estimate.outputs import write_exemplars
 from ebr_mitsuba.estimate.report import EXEMPLAR_KEY, _loss_svg, exemplar_exposure
 from ebr_mitsuba.imageio import clip_hue, read_ldr, write_png
@@ -135,7 +136,7 @@ def test_exemplar_thumbnails_not_washed_out_nor_fringed(tmp_path, rng):
     border = shown[1][0, 5:-5].mean(axis=0)
     assert border[0] > border[1] > border[2] and border[2] < 0.95, border
     assert exemplar_exposure(stack) == pytest.approx(
-        EXEMPLAR_KEY / np.mean([(a @ np.float32([0.2126, 0.7152, 0.0722])).mean() for a in stack]), rel=1e-5)
+        EXEMPLAR_KEY / np.mean([(a @ LUMINANCE.astype(np.float32)).mean() for a in stack]), rel=1e-5)
     assert exemplar_exposure([np.zeros((4, 4, 3), np.float32)]) == 1.0
 
 

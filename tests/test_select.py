@@ -2,7 +2,7 @@
 
 Targets are uniform materials of known roughness rendered with the fast renderer (quadrature,
 256 directions, another seed than the selection's bases) at 48², with albedos unlike the exemplar
-material's; the acceptance tolerance is DESIGN's 0.1 in roughness. Environments have a feature
+material's; the acceptance tolerance is 0.1 in roughness. Environments have a feature
 the near camera sees in reflection (under overcast light the selection is weakly determined; the
 module docstring says so and no test pretends otherwise).
 """

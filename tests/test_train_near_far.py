@@ -1,8 +1,9 @@
 """Near-far training of the EBREnv networks (four shots in; ebr_mitsuba.train, ``ebr train``).
 
-A tiny near-far data set (4 samples at 32², fast renderer, configs/data_tiny_near_far.toml) is
-generated once per module and configs/train_tiny_near_far.toml trains two steps of every phase on
-it through the CLI; the trained model then predicts from the four shots, and the training path of
+A tiny near-far data set (4 samples at 32², fast renderer, configs/data_tiny_near_far.toml: the
+``tiny_nf`` fixture of tests/conftest.py, generated once per test run) is shared, and
+configs/train_tiny_near_far.toml trains two steps of every phase on it through the CLI; the
+trained model then predicts from the four shots, and the training path of
 stage 2 is checked against :func:`ebr_mitsuba.train.inference.predict` on the same sample.
 """
 
@@ -26,20 +27,6 @@ NEAR_FAR_SHOTS = ["flash", "noflash", "far_flash", "far_noflash"]
 
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")  # conftest: torch on one thread
-
-
-def _generate(name: str, out: Path, count: int | None = None) -> Path:
-    from ebr_mitsuba.data.config import load_config as load_data_config
-    from ebr_mitsuba.data.generate import generate
-
-    config = load_data_config(CONFIGS / name)
-    generate(config if count is None else config.with_count(count), out, progress=False)
-    return out
-
-
-@pytest.fixture(scope="module")
-def tiny_nf(tmp_path_factory) -> Path:
-    return _generate("data_tiny_near_far.toml", tmp_path_factory.mktemp("tiny_nf") / "data")
 
 
 @pytest.fixture(scope="module")
@@ -123,11 +110,11 @@ def test_stage2_training_path_matches_predict(tiny_nf, run_nf):
         mp.setenv("EBR_TRAIN_DATA", str(tiny_nf))
         config = load_config(CONFIGS / "train_tiny_near_far.toml")
     trainer = Trainer(config, run_nf, resume=True)  # the finished run's weights and caches
-    trainer._prepare_phase("finetune")  # loads the stage-2 cache (files exist: no recompute)
+    finetune = trainer.phase("finetune")  # loads the stage-2 cache (files exist: no recompute)
     trainer.bundle.train(False)
     i = 1
     with torch.no_grad():
-        out = trainer._cascade("finetune", trainer.bundle.cascade, torch.tensor([i]))
+        out = finetune.forward(trainer.bundle.cascade, torch.tensor([i]))
     trainer.close()  # releases the lock of run_nf (a Trainer that is not run keeps it)
     assert out.rendered_photos.shape == (1, 12, 32, 32)
     pred = predict(trainer.bundle, *_shots(GeneratedDataset(tiny_nf)[i]))
@@ -140,12 +127,11 @@ def test_stage2_training_path_matches_predict(tiny_nf, run_nf):
         )
 
 
-def test_setup_mismatch_is_one_line_exit_2(tiny_nf, tmp_path, capsys, monkeypatch):
-    near = _generate("data_tiny.toml", tmp_path / "near", count=1)
+def test_setup_mismatch_is_one_line_exit_2(tiny, tiny_nf, tmp_path, capsys, monkeypatch):
     cases = [
         (
             "train_tiny_near_far.toml",
-            near,
+            tiny,
             "a 'near' data set; train_tiny_near_far.toml has [model].capture = 'near-far'",
         ),
         ("train_tiny.toml", tiny_nf, "a 'near-far' data set; train_tiny.toml has [model].capture = 'near'"),

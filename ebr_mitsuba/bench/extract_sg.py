@@ -34,7 +34,6 @@ Ground truth and errors (relative RMSE ``‖a − b‖/‖b‖``):
 
 from __future__ import annotations
 
-import math
 import os
 import platform
 import time
@@ -43,7 +42,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..colour import LUMINANCE
+from ..exemplar import EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR
 from ..geometry import DEFAULT_EXEMPLAR_ROUGHNESS
+from ..metrics import noise_corrected_rel_rmse
 from ._common import shared_data_dir
 
 SIZE = 128
@@ -130,11 +132,6 @@ def _mitsuba_pair(svbrdf, emitter: dict, spp: int, seed: int) -> tuple[np.ndarra
     return 0.5 * (a + b), float(np.sum((a - b) ** 2)) / 4.0
 
 
-def _corrected_error(est: np.ndarray, ref: np.ndarray, noise2: float) -> float:
-    e2 = float(np.sum((est - ref) ** 2)) - noise2
-    return math.sqrt(max(e2, 0.0) / max(float(np.sum(ref**2)), 1e-300))
-
-
 def procedural_scene(seed: int, size: int, test_spp: int) -> Scene:
     from ..extract.evaluate import heldout_material, quadrature_mean
     from ..procedural import environment_choice, make_environment
@@ -164,7 +161,8 @@ def real_scene(path: Path, size: int, spp: int, test_spp: int) -> Scene:
     emitter = source.emitter_dict()
     imgs, noise2 = [], 0.0
     for k, r in enumerate(ROUGHNESS):
-        img, n2 = _mitsuba_pair(SVBRDF.uniform(size, size, 0.1, 0.2, r), emitter, spp, 100 + 2 * k)
+        material = SVBRDF.uniform(size, size, EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR, r)
+        img, n2 = _mitsuba_pair(material, emitter, spp, 100 + 2 * k)
         imgs.append(img)
         noise2 += n2
     ref, tn2 = _mitsuba_pair(heldout_material(size), emitter, test_spp, 11)
@@ -179,12 +177,12 @@ def evaluate(scene: Scene, env, size: int, test_spp: int) -> dict:
     from ..sources import EnvSource
 
     est = quadrature_mean(env, ROUGHNESS, size, seeds=4, seed0=5000).astype(np.float64)
-    ex = _corrected_error(est, scene.exemplars.astype(np.float64), scene.exemplar_noise2)
+    ex = noise_corrected_rel_rmse(est, scene.exemplars.astype(np.float64), scene.exemplar_noise2)
     if env.num_lobes == 0:
         return {"exemplars": ex, "test": 1.0}
     emitter = EnvSource("<memory>", "sg", sg=env).emitter_dict()
     test, n2 = _mitsuba_pair(heldout_material(size), emitter, test_spp, 21)
-    return {"exemplars": ex, "test": _corrected_error(test, scene.test_ref, scene.test_noise2 + n2)}
+    return {"exemplars": ex, "test": noise_corrected_rel_rmse(test, scene.test_ref, scene.test_noise2 + n2)}
 
 
 def methods(settings: Settings = FULL) -> list[tuple[str, object]]:
@@ -213,12 +211,13 @@ def run_method(config, exemplars: np.ndarray):
 
 
 def lighting_error(env, truth, size: int, refs: dict, grid=STUDY_GRID) -> float:
-    """Mean of the study grid's exemplar error and the test-material error (fast quadrature)."""
-    from ..extract.evaluate import quadrature_mean, rel_rmse
+    """Mean of the study grid's exemplar error and the test-material error (fast quadrature,
+    :func:`ebr_mitsuba.extract.evaluate.lighting_errors` against the precomputed ``refs``)."""
+    from ..extract.evaluate import lighting_errors
 
-    est_ex = quadrature_mean(env, grid, size, seeds=2, seed0=5000)
-    est_t = quadrature_mean(env, None, size, seeds=2, seed0=5000)
-    return 0.5 * (rel_rmse(est_ex, refs["family"]) + rel_rmse(est_t, refs["test"]))
+    reference = {"exemplars": refs["family"], "test": refs["test"]}
+    errs = lighting_errors(env, truth, grid, size, seeds=2, reference=reference)
+    return 0.5 * (errs["exemplars"] + errs["test"])
 
 
 ISSUE_SET = DEFAULT_EXEMPLAR_ROUGHNESS  # the toolkit's default set, judged by the study
@@ -416,7 +415,7 @@ def cpu_peak() -> tuple[float, str]:
 def _tonemap(img: np.ndarray, ref: np.ndarray) -> np.ndarray:
     from ..imageio import linear_to_srgb
 
-    scale = 0.5 / max(float(np.percentile(ref @ np.array([0.2126, 0.7152, 0.0722]), 99)), 1e-12)
+    scale = 0.5 / max(float(np.percentile(ref @ LUMINANCE, 99)), 1e-12)
     return np.clip(linear_to_srgb(np.clip(img * scale, 0.0, 1.0)), 0.0, 1.0)
 
 
@@ -666,9 +665,9 @@ def run(out_dir: Path, quick: bool = False) -> Path:
         lines.append(f"| {mode} | {cells[0]} | {cells[1]} | {secs:.1f} s |")
     lines += [
         "",
-        "`sg` fits the closed form, which overshoots rough exemplars (DESIGN §5): the lobes absorb the "
-        "bias and every other material pays for it. `corrected` (the default) optimises the closed form plus "
-        "a quadrature − closed-form residual refreshed at iterations 0, 150, 250, 325.",
+        "`sg` fits the closed form, which overshoots rough exemplars ([renderer.md](renderer.md)): the "
+        "lobes absorb the bias and every other material pays for it. `corrected` (the default) optimises "
+        "the closed form plus a quadrature − closed-form residual refreshed at iterations 0, 150, 250, 325.",
         "",
     ]
     lines += [

@@ -33,7 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import machine, rel_rms, shared_data_dir
+from ..metrics import rel_rmse
+from ._common import machine, shared_data_dir
 
 SIZE = 256
 THROUGHPUT_SAMPLES = 4
@@ -141,9 +142,9 @@ def fast_vs_mitsuba(config, samples: int = ERROR_SAMPLES, size: int = SIZE) -> l
             d = acc.setdefault(key, {"noise": [], "sg": [], "quadrature": []})
             if float(np.abs(ref).max()) == 0.0:
                 continue
-            d["noise"].append(rel_rms(m2[key], ref))
-            d["sg"].append(rel_rms(f_sg[key], ref))
-            d["quadrature"].append(rel_rms(f_q[key], ref))
+            d["noise"].append(rel_rmse(m2[key], ref))
+            d["sg"].append(rel_rmse(f_sg[key], ref))
+            d["quadrature"].append(rel_rmse(f_q[key], ref))
     rows = []
     env_r = cfg.exemplars.env_roughness
     point_r = cfg.exemplars.point_roughness
@@ -216,9 +217,9 @@ def fit_comparison(data_dir: Path, lobes_ours=FIT_LOBES, iterations: int = FIT_I
         bsdf = mi.load_dict(svbrdf_bsdf_dict(svbrdf))
         ref = _crn_render(svbrdf, bsdf, emitters["map"], shot, spp, seed=1)
         ref2 = _crn_render(svbrdf, bsdf, emitters["map"], shot, spp, seed=2)
-        row = {"material": mat_name, "noise": rel_rms(ref2, ref)}
+        row = {"material": mat_name, "noise": rel_rmse(ref2, ref)}
         for name in fits:
-            row[name] = rel_rms(_crn_render(svbrdf, bsdf, emitters[name], shot, spp, seed=1), ref)
+            row[name] = rel_rmse(_crn_render(svbrdf, bsdf, emitters[name], shot, spp, seed=1), ref)
         render_rows.append(row)
     return {"map_rows": map_rows, "render_rows": render_rows, "fits": list(fits), "map": PEER_MAP,
             "iterations": iterations}

@@ -15,7 +15,7 @@ variables name them (the page's first section lists the commands that make them)
   (``configs/train_small_nocascade.toml``: the "without cascade" ablation).
 
 **What is measured.** :func:`ebr_mitsuba.train.evaluate.evaluate` on every held-out sample, all
-predictors on the same samples and the same 30 seeded re-render light/view pairs (DESIGN §3
+predictors on the same samples and the same 30 seeded re-render light/view pairs (``docs/conventions.md``
 metrics): the shipped model (``ebr_mitsuba/models/ebrenv_small.pt``), baseline (a), baseline (b),
 and the paper's §5.3.2 ablations: without cascade (one joint net for all maps), without
 exemplars (= baseline (b)) and without adaptive selection (the shipped model with both exemplar
@@ -280,8 +280,9 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
         + (f"; **quick run: {n} samples only, not the documented figures**." if quick else "."),
         "",
         "`ebr_mitsuba/models/ebrenv_small.pt` is what `ebr estimate`, `ebr demo` and `ebr eval` use when "
-        f"no `--checkpoint` is given: the EBREnv lighting net and cascade (DESIGN §1) at the NAFNet `small` "
-        f"size on a 64² grid, {params / 1e6:.2f} M parameters, {model_mb:.1f} MB (float16 weights).",
+        "no `--checkpoint` is given: the EBREnv lighting net and cascade "
+        f"([conventions](conventions.md#pipeline)) at the NAFNet `small` size on a 64² grid, "
+        f"{params / 1e6:.2f} M parameters, {model_mb:.1f} MB (float16 weights).",
         "",
         "## How it is made (and how to regenerate every table here)",
         "",
@@ -320,10 +321,10 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
         f"`$EBR_TEST_DATA` ({n} samples of `configs/data_small_test.toml`): the real texture sets of "
         "`shared/data/materials` and the procedural families `marble` and `painted` (never in training) "
         "under the four Poly Haven HDR maps of `shared/data/envmaps` (training saw procedural SG skies "
-        "only). Metrics of DESIGN §3: per-map RMSE (normals as (n+1)/2) and their mean; re-render RMSE "
-        "and SSIM over 30 seeded point-light/view pairs (seed 0); seconds per sample of the whole "
-        "prediction (lighting net, SG extraction, exemplar selection, cascade) on this CPU. Lower is "
-        "better except SSIM.",
+        "only). Metrics of [conventions](conventions.md#metrics): per-map RMSE (normals as (n+1)/2) and "
+        "their mean; re-render RMSE and SSIM over 30 seeded point-light/view pairs (seed 0); seconds per "
+        "sample of the whole prediction (lighting net, SG extraction, exemplar selection, cascade) on "
+        "this CPU. Lower is better except SSIM.",
         "",
         header,
         rule,

@@ -45,14 +45,17 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import machine, rel_rms
+from ..exemplar import EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR
+from ..metrics import rel_rmse
+from ._common import machine
 
 ROUGHNESS_BUCKETS = (0.05, 0.2, 0.5, 0.9)
 VIEW_BUCKETS = (0.0, 30.0, 60.0, 80.0)
 MITSUBA_SPP = (16, 64, 256, 1024)
 QUADRATURE_SPP = (16, 64, 256)
 TARGETS = (0.02, 0.05)  # relative-RMSE budgets of the "which mode when" section
-UNIFORM_MATERIALS = (("exemplar", 0.1, 0.2), ("plastic", 0.3, 0.04))  # (name, diffuse, specular)
+# (name, diffuse, specular)
+UNIFORM_MATERIALS = (("exemplar", EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR), ("plastic", 0.3, 0.04))
 SVBRDF_MATERIALS = (("tiles", 1), ("metal", 2))
 ENV_SPECS = (("default", None, None), ("window", 3, "window"), ("overcast", 4, "overcast"))
 
@@ -183,11 +186,11 @@ def measure_errors(settings: Settings, seed: int = 0, progress=None) -> list[dic
                 for k, spp in enumerate(settings.mitsuba_spp):
                     est = trace(scene, cams, dirs, spp=spp, seed=case_seed + 7919 * (k + 1),
                                 integrator=integrator)
-                    errors[f"mitsuba {spp}"] = rel_rms(est.mean, ref.mean)
-                errors["sg"] = rel_rms(fast_radiance(plane, pts, cams, "sg", 1), ref.mean)
+                    errors[f"mitsuba {spp}"] = rel_rmse(est.mean, ref.mean)
+                errors["sg"] = rel_rmse(fast_radiance(plane, pts, cams, "sg", 1), ref.mean)
                 for spp in settings.quadrature_spp:
                     quad = fast_radiance(plane, pts, cams, "quadrature", spp)
-                    errors[f"quadrature {spp}"] = rel_rms(quad, ref.mean)
+                    errors[f"quadrature {spp}"] = rel_rmse(quad, ref.mean)
                 rows.append({"material": mat.name, "group": mat.group, "bucket": mat.bucket, "env": env_name,
                              "view": float(view),
                              "ref_noise": ref.relative_noise(), "errors": errors})

@@ -1,5 +1,6 @@
-"""``ebr bench split``: every model and baseline on the fixed test split (DESIGN §6); writes
-``test_split.md`` with ``test_split_maps.png`` (contact sheet) and ``test_split_classes.png``.
+"""``ebr bench split``: every model and baseline on the fixed test split (``docs/conventions.md``,
+"Metrics"); writes ``test_split.md`` with ``test_split_maps.png`` (contact sheet) and
+``test_split_classes.png``.
 
 The protocol is EBREnv's Table 1, near field: test captures of the real material sets and HDR maps
 of ``scenes/test_split.toml`` (``configs/data_real_test.toml``: Mitsuba, 256 spp, 256²), per-map

@@ -125,7 +125,9 @@ def default_env():
 
 def lighting_error(estimated, truth, res: int = 64) -> dict:
     """RMSE and relative RMSE of exemplars (roughness 0.1, 0.3, 0.6, 0.9) rendered under the
-    estimated vs the true SGs (DESIGN §3 "Lighting error"), fast renderer, near camera."""
+    estimated vs the true SGs (:func:`ebr_mitsuba.metrics.lighting_error`), fast renderer, near
+    camera."""
+    from ..metrics import lighting_error as error
     from ..render import exemplar_images
     from ..sgenv import SGEnvironment
 
@@ -134,10 +136,7 @@ def lighting_error(estimated, truth, res: int = 64) -> dict:
         for t in exemplar_images(estimated or SGEnvironment.empty(), EXEMPLAR_ROUGHNESS, res, res)
     ]
     ref = [np.asarray(t.numpy()) for t in exemplar_images(truth, EXEMPLAR_ROUGHNESS, res, res)]
-    d = np.stack(est).astype(np.float64) - np.stack(ref)
-    rmse = float(np.sqrt(np.mean(d**2)))
-    rms = float(np.sqrt(np.mean(np.stack(ref).astype(np.float64) ** 2)))
-    return {"rmse": rmse, "rel_rmse": rmse / rms if rms > 0 else float("nan")}
+    return error(np.stack(est), np.stack(ref))
 
 
 def demo_strip(out: Path, path: Path, true_env=None) -> Path:

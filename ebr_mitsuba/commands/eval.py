@@ -1,4 +1,4 @@
-"""Evaluate a trained model on a generated data set (DESIGN §3 metrics).
+"""Evaluate a trained model on a generated data set (the metrics of docs/conventions.md).
 
   ebr eval [--checkpoint CKPT] --data DIR [--json] [--limit N] [--seed S]
            [--baseline-mean TRAIN_DIR] [--baseline-oracle] [--baseline-checkpoint NAME=CKPT ...]
@@ -67,7 +67,8 @@ def add_arguments(parser) -> None:
     parser.add_argument(
         "--baseline-oracle",
         action="store_true",
-        help="also score the oracle constant: each sample's own ground-truth mean maps (DESIGN §6)",
+        help="also score the oracle constant: each sample's own ground-truth mean maps "
+        "(docs/conventions.md, Metrics)",
     )
     parser.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
 

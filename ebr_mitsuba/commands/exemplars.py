@@ -30,6 +30,7 @@ import time
 from pathlib import Path
 
 from ..errors import InputError
+from ..exemplar import EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR
 from ..geometry import DEFAULT_EXEMPLAR_ROUGHNESS
 from ._common import emit_json, say
 
@@ -114,7 +115,7 @@ def render_exemplars(
             raise InputError("--env is required for environment exemplars (or give --point-light)")
         shot = near_shot(False)
         source = parse_env(env_spec)
-    material = [SVBRDF.uniform(res, res, 0.1, 0.2, r) for r in roughness]
+    material = [SVBRDF.uniform(res, res, EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR, r) for r in roughness]
     if renderer == "mitsuba":
         emitter = None if source is None else source.emitter_dict()
         images = [render_shot(m, emitter, shot, spp, shot_seed(seed, k)) for k, m in enumerate(material)]

@@ -8,8 +8,8 @@ near_noflash, far_flash, far_noflash). Scene parameters (``$name`` in the XML) a
 overrides the sample count of the scene's sampler. The image is written atomically as linear
 RGB float32 EXR. ``--json`` prints {"out", "scene", "seconds", "spp", "resolution", "variant"}.
 
-Bundled scenes (camera, flash and sample as DESIGN 3; direct integrator, box filter) and their
-parameters, defaults in brackets:
+Bundled scenes (camera, flash and sample as docs/conventions.md, "Geometry and pixel grid"; direct
+integrator, box filter) and their parameters, defaults in brackets:
 
   near_flash, default   near shot with flash: spp [64], res [256], diffuse0 [0.60,0.42,0.25],
                         diffuse1 [0.12,0.09,0.07], checks [4] (checkerboard periods),

@@ -1,4 +1,5 @@
-"""Choose the exemplar roughness values for a photo (adaptive exemplar selection, DESIGN §1 step 3).
+"""Choose the exemplar roughness values for a photo (adaptive exemplar selection, step 3 of
+docs/conventions.md, "Pipeline").
 
   ebr select-exemplars --env env.json --image noflash.exr [--json]
   ebr select-exemplars --image flash_only.exr --point-light [--json]

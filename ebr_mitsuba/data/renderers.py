@@ -34,13 +34,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..exemplar import EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR
 from ..geometry import Shot, near_shot, setup_shots
 from ..svbrdf import SVBRDF
 from .config import GenerateConfig
 from .sample import EnvDraw, SampleDraw, equirect_map
-
-EXEMPLAR_DIFFUSE = 0.1
-EXEMPLAR_SPECULAR = 0.2
 
 
 @dataclass
@@ -63,13 +61,13 @@ def shots_of(config: GenerateConfig) -> list[Shot]:
     return setup_shots(config.capture.setup, intensity=config.capture.flash_intensity)
 
 
+def exemplar_material(size: int, roughness: float) -> SVBRDF:
+    return SVBRDF.uniform(size, size, EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR, float(roughness))
+
+
 def has_flash_only(shot: Shot) -> bool:
     """Whether a shot gets a flash-only image (lit by the flash and by the environment)."""
     return shot.flash is not None and shot.env
-
-
-def exemplar_material(size: int, roughness: float) -> SVBRDF:
-    return SVBRDF.uniform(size, size, EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR, float(roughness))
 
 
 class _Mitsuba:

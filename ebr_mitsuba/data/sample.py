@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..colour import LUMINANCE
 from ..errors import InputError
 from ..procedural import FAMILIES, FLASH_IRRADIANCE, INTENSITY_LEVELS, AugmentSettings, augment, make_material
 from ..procedural import make_environment as procedural_environment
@@ -52,7 +53,6 @@ from .config import (
 
 STREAMS = {"choice": 0, "material": 1, "environment": 2, "camera": 3, "render": 4}
 SEED_BOUND = 2 ** 31
-LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 
 
 def stream_rng(seed: int, index: int, stream: str) -> np.random.Generator:

@@ -1,4 +1,5 @@
-"""The fixed test split of the real assets (DESIGN §6), read from ``scenes/test_split.toml``.
+"""The fixed test split of the real assets (``docs/conventions.md``, "Metrics", evaluation
+protocol), read from ``scenes/test_split.toml``.
 
 The split names material sets and HDR maps by their path relative to the shared data folder
 (``$EBR_DATA_DIR``). Everything else under ``materials/``, ``materials_extra/``, ``envmaps/`` and

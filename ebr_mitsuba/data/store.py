@@ -22,9 +22,9 @@
 Units: photos are camera-simulated (:mod:`.camera`); flash-only images and exemplars are linear
 radiance × exposure × white-balance gains (the photos' units before noise and clipping);
 ``env.json`` is radiance (divide the images by ``camera.exposure · camera.white_balance`` to
-compare with renders under it). Maps follow the material-directory conventions (DESIGN §3).
-Shot names: near ``flash``, ``noflash``; near-far + ``far_flash``, ``far_noflash``; five-light
-``light0`` … ``light4``; multi-view ``view{a}{b}_flash``.
+compare with renders under it). Maps follow the material-directory conventions
+(``docs/conventions.md``, "Maps"). Shot names: near ``flash``, ``noflash``; near-far +
+``far_flash``, ``far_noflash``; five-light ``light0`` … ``light4``; multi-view ``view{a}{b}_flash``.
 
 ``sample.json`` (``ebr-sample/1``): ``index``, ``seed`` ([data-set seed, index]), ``setup``,
 ``resolution`` [H, W], ``renderer`` ({name, spp, integrator} or {name, mode, spp}), ``material``

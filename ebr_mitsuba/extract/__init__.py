@@ -1,4 +1,5 @@
-"""Dominant spherical-Gaussian extraction from environment exemplars (DESIGN §1 step 2).
+"""Dominant spherical-Gaussian extraction from environment exemplars (step 2 of
+``docs/conventions.md``, "Pipeline").
 
 =========================  =====================================================================
 name                       what

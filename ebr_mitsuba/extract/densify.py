@@ -14,11 +14,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..render.fast import EXEMPLAR_SPECULAR
+from ..colour import LUMINANCE
+from ..exemplar import EXEMPLAR_SPECULAR
 from .forward import ExemplarGeometry
 from .init import brdf_sharpness, level_sharpness, span_angle
 from .msssim import ms_ssim_error
-from .quadtree import LUMINANCE
 
 
 def error_maps(model: np.ndarray, targets: np.ndarray) -> np.ndarray:

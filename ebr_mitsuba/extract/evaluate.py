@@ -1,4 +1,5 @@
-"""Lighting accuracy of an extracted environment (DESIGN §3 metrics, "lighting error").
+"""Lighting accuracy of an extracted environment (the lighting error of ``docs/conventions.md``,
+"Metrics"; :func:`ebr_mitsuba.metrics.lighting_error`).
 
 Two numbers, both relative RMSE ``‖a − b‖ / ‖b‖`` over all pixels and channels:
 
@@ -21,6 +22,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..geometry import Shot, near_shot
+from ..metrics import rel_rmse
 from ..sgenv import SGEnvironment
 from ..svbrdf import SVBRDF
 
@@ -35,13 +37,6 @@ def heldout_material(size: int) -> SVBRDF:
 
 
 TEST_MATERIAL = "uniform: diffuse (0.5, 0.35, 0.2), specular 0.04, roughness 0.45, flat normal"
-
-
-def rel_rmse(estimate: np.ndarray, reference: np.ndarray) -> float:
-    """``‖estimate − reference‖ / ‖reference‖`` (0 when both are zero)."""
-    num = float(np.linalg.norm(np.asarray(estimate, np.float64) - np.asarray(reference, np.float64)))
-    den = float(np.linalg.norm(np.asarray(reference, np.float64)))
-    return num / den if den > 0 else (0.0 if num == 0 else float("inf"))
 
 
 def quadrature_mean(
@@ -84,8 +79,9 @@ def lighting_errors(
     seeds: int = 8,
     reference: dict | None = None,
 ) -> dict:
-    """``{"exemplars": rel RMSE, "test": rel RMSE}`` of ``estimate`` against ``truth``;
-    ``reference`` may hold precomputed truth renders under the same keys."""
+    """``{"exemplars": rel RMSE, "test": rel RMSE}`` (:func:`ebr_mitsuba.metrics.rel_rmse`: the
+    benchmarks rank on it) of ``estimate`` against ``truth``; ``reference`` may hold precomputed
+    truth renders under the same keys."""
     reference = reference or {}
     ref_ex = reference.get("exemplars")
     if ref_ex is None:

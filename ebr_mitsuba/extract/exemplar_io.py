@@ -13,7 +13,7 @@ file                content
 key               value
 ================  ==================================================================================
 ``kind``          ``"env"`` (environment exemplars, flash off) or ``"point"`` (the near flash alone)
-``material``      ``{"diffuse": 0.1, "specular": 0.2, "normal": [0, 0, 1]}`` (DESIGN §3)
+``material``      ``{"diffuse": 0.1, "specular": 0.2, "normal": [0, 0, 1]}`` (:mod:`ebr_mitsuba.exemplar`)
 ``exemplars``     ``[{"file": "r0.100.exr", "roughness": 0.1}, …]`` in the order given
 ``resolution``    [H, W]
 ``shot``          the camera (and light) as :meth:`ebr_mitsuba.geometry.Shot.to_json`
@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..exemplar import exemplar_material_json
 from ..geometry import NEAR_FOV, Shot
 
 FORMAT = "ebr-exemplars/1"
@@ -93,7 +94,7 @@ def write_exemplars(
     meta = {
         "format": FORMAT,
         "kind": kind,
-        "material": {"diffuse": 0.1, "specular": 0.2, "normal": [0.0, 0.0, 1.0]},
+        "material": exemplar_material_json(),
         "exemplars": [{"file": n, "roughness": float(r)} for n, r in zip(names, roughness)],
         "resolution": [int(h), int(w)],
         "shot": shot.to_json(),

@@ -25,8 +25,9 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..exemplar import EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR
 from ..geometry import Shot
-from ..render.fast import EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR, environment
+from ..render.fast import environment
 from ..render.inputs import DrLobes, RenderOptions
 from ..render.points import ShadingPoints, grid_positions, opaque_point, view_vectors
 

@@ -26,19 +26,19 @@ import math
 
 import numpy as np
 
-from ..render.fast import EXEMPLAR_SPECULAR
+from ..exemplar import EXEMPLAR_SPECULAR
+from ..floors import ROUGHNESS_MIN
+from ..sgparams import SHARPNESS_MAX, SHARPNESS_MIN
 from .forward import ExemplarGeometry
 from .quadtree import quadtree
 
 FILL_SHARPNESS = (3.0, 30.0, 300.0)
-MAX_SHARPNESS = 2.0e4
-MIN_SHARPNESS = 0.5
 LN2 = math.log(2.0)
 
 
 def brdf_sharpness(roughness: float) -> float:
-    """Sharpness of the GGX lobe reflected at normal view, ``1/(2α²)``, α = clamp(r, 0.03, 1)²."""
-    alpha = min(max(float(roughness), 0.03), 1.0) ** 2
+    """Sharpness of the GGX lobe reflected at normal view, ``1/(2α²)``, α = clamp(r, ROUGHNESS_MIN, 1)²."""
+    alpha = min(max(float(roughness), ROUGHNESS_MIN), 1.0) ** 2
     return 1.0 / (2.0 * alpha * alpha)
 
 
@@ -93,7 +93,7 @@ def quadtree_lobes(
         for p, axis in zip(patches, mirror):
             lam_l = level_sharpness(p.level, theta0)
             lam = 1.0 / max(1.0 / lam_l - 1.0 / lam_w, 1.0 / (4.0 * lam_l))
-            lam = float(np.clip(lam, MIN_SHARPNESS, MAX_SHARPNESS))
+            lam = float(np.clip(lam, SHARPNESS_MIN, SHARPNESS_MAX))
             spec = np.maximum(np.asarray(p.mean) - floor, 0.0)
             amp = spec / (EXEMPLAR_SPECULAR * lam_w / (lam_w + lam))
             axes.append(axis)

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .quadtree import LUMINANCE
+from ..colour import LUMINANCE
 
 
 def sg_integrals(sharpness: np.ndarray) -> np.ndarray:

@@ -22,9 +22,9 @@ function             what
 ``data_range`` (the L of ``C1 = (K1 L)²``, ``C2 = (K2 L)²``): by default the larger of the two
 images' maxima (floor 1e-12), so that two HDR images of the same scale compare like their
 [0, 1]-normalised versions. Pass a fixed value to compare with a known range (e.g. 1.0 for
-sRGB-encoded, clipped images as DESIGN §3 metrics do). Images are compared as given (linear);
-encode them first for a perceptual comparison. Images smaller than the window (H or W < 11) are
-an :class:`~ebr_mitsuba.errors.InputError`.
+sRGB-encoded, clipped images as the metrics of ``docs/conventions.md`` do). Images are compared as
+given (linear); encode them first for a perceptual comparison. Images smaller than the window (H or
+W < 11) are an :class:`~ebr_mitsuba.errors.InputError`.
 """
 
 from __future__ import annotations

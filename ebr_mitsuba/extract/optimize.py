@@ -9,11 +9,12 @@ with ``‖y_i‖`` the exemplar's full-image RMS scaled to g² pixels, ``ε_i`` 
 radiance and β = ``log_weight``. Saturated pixels (see :class:`Problem`) count only when the
 model is *below* them (a clipped pixel is a lower bound). Parameters are unconstrained: the axis
 as a free 3-vector (normalised by the renderer), ``log λ`` (clamped to [log 0.5, log 2·10⁴]) and
-``log μ`` (so μ > 0 always), learning rates decaying along a cosine to 10 % over each call of
-:func:`run_adam` (one stage between densification rounds). The pixel indices are data and the
-quadrature seed is opaque, so one set of kernels serves every iteration, and the whole step
-(forward, backward, Adam update) is a :func:`drjit.freeze` function: traced once per call of
-:func:`run_adam` and replayed after that. The loss is read back every ``READBACK`` iterations only.
+``log μ`` (so μ > 0 always; :mod:`ebr_mitsuba.sgparams`), learning rates decaying along a cosine
+to 10 % over each call of :func:`run_adam` (one stage between densification rounds). The pixel
+indices are data and the quadrature seed is opaque, so one set of kernels serves every
+iteration, and the whole step (forward, backward, Adam update) is a :func:`drjit.freeze`
+function: traced once per call of :func:`run_adam` and replayed after that. The loss is read back
+every ``READBACK`` iterations only.
 
 Speed (measured with 64 lobes, 4 exemplars, 32² pixels each per iteration: 262,144 (pixel, lobe)
 pairs): an iteration is two kernels over the pairs (forward; reverse, which recomputes the
@@ -43,14 +44,13 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from .. import sgparams
 from ..render.inputs import DrLobes, RenderOptions
 from .forward import ExemplarGeometry, stratified_indices
 
 READBACK = 25
 ROW = 8  # floats per pixel in Problem's per-pixel rows
 INDEX_BLOCK = 50  # iterations whose pixel indices are drawn and uploaded at once
-LOG_LAMBDA_MIN = math.log(0.5)
-LOG_LAMBDA_MAX = math.log(2.0e4)
 
 
 @dataclass
@@ -162,15 +162,14 @@ def loss_terms(
 
 
 def lobes_from_params(axis, log_sharpness, log_amplitude) -> DrLobes:
-    lam = dr.exp(dr.clip(log_sharpness, LOG_LAMBDA_MIN, LOG_LAMBDA_MAX))
-    return DrLobes(axis, lam, dr.exp(log_amplitude))
+    """The lobes of the parameters (:func:`ebr_mitsuba.sgparams.dr_decode`)."""
+    return DrLobes(axis, *sgparams.dr_decode(log_sharpness, log_amplitude))
 
 
 def initial_params(axis: np.ndarray, sharpness: np.ndarray, amplitude: np.ndarray) -> list:
-    """Unconstrained parameters [axis, log λ, log μ] as Dr.Jit arrays."""
-    a = np.asarray(axis, np.float32)
-    s = np.log(np.clip(np.asarray(sharpness, np.float64), 0.5, 2.0e4)).astype(np.float32)
-    m = np.log(np.maximum(np.asarray(amplitude, np.float64), 1e-12)).astype(np.float32)
+    """Unconstrained parameters [axis, log λ, log μ] as Dr.Jit arrays
+    (:func:`ebr_mitsuba.sgparams.encode`)."""
+    a, s, m = sgparams.encode(axis, np.asarray(sharpness, np.float64), amplitude)
     return [
         mi.Vector3f(*(aligned(a[:, i]) for i in range(3))),
         mi.Float(aligned(s)),
@@ -196,8 +195,8 @@ def read_lobes(params) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Current lobes as numpy (axis (K, 3) unit, sharpness (K,), amplitude (K, 3)); lobes with a
     non-finite parameter are dropped."""
     a = np.asarray(params[0].numpy(), np.float64).T
-    s = np.exp(np.clip(np.asarray(params[1].numpy(), np.float64), LOG_LAMBDA_MIN, LOG_LAMBDA_MAX))
-    m = np.exp(np.asarray(params[2].numpy(), np.float64)).T
+    s, m = sgparams.decode(params[1].numpy(), params[2].numpy())
+    m = m.T
     norm = np.linalg.norm(a, axis=1)
     ok = np.isfinite(a).all(1) & np.isfinite(s) & np.isfinite(m).all(1) & (norm > 1e-12)
     return a[ok] / norm[ok, None], s[ok], m[ok]

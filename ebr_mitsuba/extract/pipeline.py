@@ -1,4 +1,5 @@
-"""Dominant spherical-Gaussian extraction from environment exemplars (DESIGN §1 step 2).
+"""Dominant spherical-Gaussian extraction from environment exemplars (step 2 of
+``docs/conventions.md``, "Pipeline").
 
 ``extract_sg(exemplars, roughness)`` turns N exemplar images — renders of the uniform exemplar
 material (diffuse 0.1, specular 0.2, roughness r_i, flat normal) under an unknown environment,
@@ -43,6 +44,8 @@ import numpy as np
 
 from ..errors import InputError
 from ..geometry import Shot, near_shot
+from ..imageio import box3, upsample_bilinear
+from ..metrics import rel_rmse
 from ..sgenv import SGEnvironment
 from .config import ExtractConfig
 from .forward import ExemplarGeometry, centre_indices
@@ -280,7 +283,7 @@ class _Run:
         else:
             delta = q - s
         if coarse is not g:
-            delta = np.stack([upsample_bilinear(d, g.height, g.width) for d in delta])
+            delta = np.stack([upsample_bilinear(d, (g.height, g.width)) for d in delta])
         self.problem.set_correction(delta.reshape(-1, 3))
 
     def prune(self, lobes):
@@ -376,28 +379,8 @@ class _Run:
 
         lobes = keep_strongest(*lobes, c.max_lobes)
         model = self.timed("evaluate", self.model, lobes)
-        err = float(np.linalg.norm(model - self.images) / max(np.linalg.norm(self.images), 1e-300))
+        err = rel_rmse(model, self.images)
         return lobes, iterations, err
-
-
-def box3(image: np.ndarray) -> np.ndarray:
-    """3×3 box filter of an (h, w, C) image, edges clamped."""
-    p = np.pad(image, ((1, 1), (1, 1), (0, 0)), mode="edge")
-    h, w = image.shape[:2]
-    return sum(p[i : i + h, j : j + w] for i in range(3) for j in range(3)) / 9.0
-
-
-def upsample_bilinear(image: np.ndarray, height: int, width: int) -> np.ndarray:
-    """(h, w, C) → (height, width, C), bilinear between pixel centres (edges clamped)."""
-    h, w = image.shape[:2]
-    ys = np.clip((np.arange(height) + 0.5) * h / height - 0.5, 0.0, h - 1.0)
-    xs = np.clip((np.arange(width) + 0.5) * w / width - 0.5, 0.0, w - 1.0)
-    y0, x0 = np.floor(ys).astype(int), np.floor(xs).astype(int)
-    y1, x1 = np.minimum(y0 + 1, h - 1), np.minimum(x0 + 1, w - 1)
-    fy, fx = (ys - y0)[:, None, None], (xs - x0)[None, :, None]
-    top = image[y0][:, x0] * (1 - fx) + image[y0][:, x1] * fx
-    bottom = image[y1][:, x0] * (1 - fx) + image[y1][:, x1] * fx
-    return (top * (1 - fy) + bottom * fy).astype(image.dtype)
 
 
 def to_environment(lobes, scale: float) -> SGEnvironment:

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..colour import LUMINANCE
+
 
 @dataclass(frozen=True)
 class Patch:
@@ -33,9 +35,6 @@ class Patch:
     def centre(self) -> tuple[float, float]:
         """(row, col) of the centre in pixel units (0.5 = centre of pixel 0)."""
         return self.row + 0.5 * self.height, self.col + 0.5 * self.width
-
-
-LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 
 
 def _sat(x: np.ndarray) -> np.ndarray:

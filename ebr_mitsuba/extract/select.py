@@ -1,4 +1,5 @@
-"""Adaptive exemplar selection (DESIGN §1 step 3): which roughness values the cascade's exemplars use.
+"""Adaptive exemplar selection (step 3 of ``docs/conventions.md``, "Pipeline"): which roughness
+values the cascade's exemplars use.
 
 The lighting network predicts exemplars at fixed roughness values; the diffuse and specular
 networks work better with an exemplar whose reflection looks like the photographed material's.
@@ -80,12 +81,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..brdf import ROUGHNESS_MIN
+from ..colour import LUMINANCE
 from ..errors import ConfigError, InputError
+from ..exemplar import EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR
+from ..floors import ROUGHNESS_MIN
 from ..geometry import Shot, near_shot
-from ..render.fast import EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR
 from ..sgenv import SGEnvironment
-from .quadtree import LUMINANCE
 
 MIN_SIZE = 4
 
@@ -355,7 +356,7 @@ def select_exemplars(
     ``env``: the (extracted) SG environment; required unless ``point_light``. ``target``: the
     no-flash image, or the flash-only image when ``point_light`` (H, W, 3) linear. ``shot``: the
     camera (and, for point-light exemplars, the flash) the target was taken with; default the near
-    shot of DESIGN §3 (its flash for ``point_light``).
+    shot of :mod:`ebr_mitsuba.geometry` (its flash for ``point_light``).
     """
     from ..imageio import resize_area
 

@@ -1,11 +1,11 @@
 """The Dr.Jit fast renderer called from torch through ``dr.wrap``, with gradients into torch.
 
 :func:`ebr_mitsuba.render.render` (one shading point per pixel, point light + SG environment,
-DESIGN §3 BRDF) is wrapped with ``@dr.wrap(source="torch", target="drjit")``: torch tensors go in
-zero-copy (DLPack), the render runs as Dr.Jit kernels, and ``loss.backward()`` in torch propagates
-through the Dr.Jit AD graph into the torch map (and lobe) tensors. This is the renderer of the
-rendering losses and of the cascade's photo renders wherever the environment is involved; the
-point-light-only torch mirror :mod:`.torch_brdf` is tested against it.
+the BRDF of ``docs/conventions.md``) is wrapped with ``@dr.wrap(source="torch", target="drjit")``:
+torch tensors go in zero-copy (DLPack), the render runs as Dr.Jit kernels, and ``loss.backward()``
+in torch propagates through the Dr.Jit AD graph into the torch map (and lobe) tensors. This is the
+renderer of the rendering losses and of the cascade's photo renders wherever the environment is
+involved; the point-light-only torch mirror :mod:`.torch_brdf` is tested against it.
 
 Shapes at this boundary:
 

@@ -1,4 +1,4 @@
-"""The five-light fixed-view "dual loss" estimator (DESIGN §1, "Also in scope").
+"""The five-light fixed-view "dual loss" estimator (``docs/conventions.md``, "Pipeline").
 
 Input: ``L = 5`` photos of the sample from the near camera, each lit by one point light of
 :data:`ebr_mitsuba.geometry.FIVE_LIGHT_POSITIONS` (no environment), stacked as

@@ -33,7 +33,8 @@ __all__ = [
     "RENDER_DISTANCE",
 ]
 
-RENDER_DISTANCE = 2.14  # light/camera distance of the rendering loss and the re-render metric (DESIGN §3)
+# light/camera distance of the rendering loss and the re-render metric (docs/conventions.md, "Metrics")
+RENDER_DISTANCE = 2.14
 
 Mask = torch.Tensor | None
 RenderFn = Callable[[Maps, torch.Tensor, torch.Tensor], torch.Tensor]

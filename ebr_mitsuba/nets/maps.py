@@ -1,6 +1,6 @@
 """A batch of SVBRDF maps as torch tensors: the named output of every material network.
 
-Shapes (image layout, the grid of DESIGN §3):
+Shapes (image layout, the pixel grid of ``docs/conventions.md``, "Geometry and pixel grid"):
 
 * ``normal``: (B, 3, H, W), tangent-space unit vectors with ``n_z > 0``;
 * ``diffuse``: (B, 3, H, W), linear RGB in [0, 1];

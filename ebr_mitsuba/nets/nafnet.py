@@ -1,4 +1,4 @@
-"""NAFNet-style encoder–decoder: the backbone of every EBREnv network (DESIGN §1).
+"""NAFNet-style encoder–decoder: the backbone of every EBREnv network (``docs/conventions.md``, "Pipeline").
 
 A U-shaped stack of *NAF blocks* (Chen et al. 2022, "Simple Baselines for Image Restoration"):
 no nonlinear activation functions, only LayerNorm, convolutions and a multiplicative gate.

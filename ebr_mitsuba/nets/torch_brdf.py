@@ -1,11 +1,11 @@
 """A torch mirror of :mod:`ebr_mitsuba.brdf` and point-light renderers on the sample grid.
 
-The BRDF of DESIGN §3 lives in Dr.Jit (:mod:`ebr_mitsuba.brdf`); training losses on the CPU need
-it inside torch autograd without a Dr.Jit round trip per step, so this module mirrors it formula
-for formula — same stable forms (GGX ``D = α²/(π(‖n×h‖² + α²(n·h)²)²)``, the Smith term folded
-with ``1/(4 (n·l)(n·v))``), the same clamps (``r ∈ [0.03, 1]``, ``1e-38``/``1e-30`` floors) and the
-same masking (zero where ``n·l ≤ 0``, ``n·v ≤ 0``, ``l_z ≤ 0`` or ``v_z ≤ 0``). ``tests/test_nets.py``
-compares it with the Dr.Jit code on random inputs (relative error ≤ 1e-5).
+The BRDF (``docs/conventions.md``, "BRDF") lives in Dr.Jit (:mod:`ebr_mitsuba.brdf`); training
+losses on the CPU need it inside torch autograd without a Dr.Jit round trip per step, so this module
+mirrors it formula for formula — same stable forms (GGX ``D = α²/(π(‖n×h‖² + α²(n·h)²)²)``, the
+Smith term folded with ``1/(4 (n·l)(n·v))``), the same clamps and floors (:mod:`ebr_mitsuba.floors`)
+and the same masking (zero where ``n·l ≤ 0``, ``n·v ≤ 0``, ``l_z ≤ 0`` or ``v_z ≤ 0``).
+``tests/test_nets.py`` compares it with the Dr.Jit code on random inputs (relative error ≤ 1e-5).
 
 Differences, all outside the valid domain or below float32 resolution: the half vector is
 ``(l+v)/max(‖l+v‖, 1e-30)`` (Dr.Jit divides by the plain norm; they differ only at ``l = −v``,
@@ -25,8 +25,9 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
-from ..brdf import FRESNEL_MODES, ROUGHNESS_MIN
+from ..brdf import FRESNEL_MODES
 from ..errors import InputError
+from ..floors import GGX_D_FLOOR, NORMAL_Z_MIN, ROUGHNESS_MIN, SMITH_FLOOR
 from ..geometry import DEFAULT_FLASH_INTENSITY, NEAR_DISTANCE, pixel_positions
 from .maps import Maps
 
@@ -55,7 +56,7 @@ def ggx_d(n, h, alpha):
     x = torch.linalg.cross(n, h, dim=-1)
     a2 = alpha * alpha
     den = _dot(x, x) + a2 * c * c
-    val = a2 * INV_PI / (den * den).clamp_min(1e-38)
+    val = a2 * INV_PI / (den * den).clamp_min(GGX_D_FLOOR)
     return torch.where(c > 0.0, val, torch.zeros_like(val))
 
 
@@ -66,7 +67,7 @@ def _lambda_term(c, alpha):
 
 def smith_vis(cl, cv, alpha):
     """``G₁(l) G₁(v) / (4 (n·l)(n·v))`` for separable Smith–GGX (stable at grazing angles)."""
-    return 1.0 / (_lambda_term(cl, alpha) * _lambda_term(cv, alpha)).clamp_min(1e-30)
+    return 1.0 / (_lambda_term(cl, alpha) * _lambda_term(cv, alpha)).clamp_min(SMITH_FLOOR)
 
 
 def fresnel_schlick(f0, cos_vh):
@@ -115,8 +116,9 @@ def diffuse_eval_cos(n, l, v, diffuse):
 
 
 def perturbed_normal(n: torch.Tensor) -> torch.Tensor:
-    """Unit shading normal from a normal-map value ``(..., 3)``: ``n_z`` clamped to ≥ 1e-4 first."""
-    return _normalize(torch.cat([n[..., :2], n[..., 2:3].clamp_min(1e-4)], dim=-1))
+    """Unit shading normal from a normal-map value ``(..., 3)``: ``n_z`` clamped to ≥
+    ``NORMAL_Z_MIN`` first."""
+    return _normalize(torch.cat([n[..., :2], n[..., 2:3].clamp_min(NORMAL_Z_MIN)], dim=-1))
 
 
 def grid_positions(height: int, width: int, device=None, dtype=torch.float32) -> torch.Tensor:
@@ -163,10 +165,10 @@ def render_point_light(maps: Maps, light, intensity=DEFAULT_FLASH_INTENSITY, cam
                        fresnel: str = "schlick") -> torch.Tensor:
     """Radiance ``f(l, v) · max(n·l, 0) · I / d²`` of the maps under an isotropic point light.
 
-    ``light``, ``camera``: positions (3,) or (B, 3) (world, DESIGN §3); ``intensity``: W/sr as a
-    float, (B,) or (B, 3). Each pixel shades its own grid point ``p`` with ``l = (light − p)/‖·‖``,
-    ``v = (camera − p)/‖·‖``, ``d = ‖light − p‖`` (no visibility, no environment).
-    Returns ``(B, 3, H, W)``.
+    ``light``, ``camera``: positions (3,) or (B, 3) (world, z-up: ``docs/conventions.md``);
+    ``intensity``: W/sr as a float, (B,) or (B, 3). Each pixel shades its own grid point ``p`` with
+    ``l = (light − p)/‖·‖``, ``v = (camera − p)/‖·‖``, ``d = ‖light − p‖`` (no visibility, no
+    environment). Returns ``(B, 3, H, W)``.
     """
     n, l, v, dist2 = _light_geometry(maps, light, camera)
     chl = lambda t: t.permute(0, 2, 3, 1)  # noqa: E731
@@ -191,7 +193,8 @@ def render_diffuse_point_light(normal: torch.Tensor, diffuse: torch.Tensor, ligh
 
 def near_flash_diffuse(intensity=DEFAULT_FLASH_INTENSITY) -> RenderDiffuse:
     """``render_diffuse_flash(normal, diffuse) -> (B, 3, H, W)`` for the near flash shot
-    (camera and flash at (0, 0, 2.414), DESIGN §3) — the torch stand-in the cascade accepts."""
+    (camera and flash at (0, 0, 2.414), :mod:`ebr_mitsuba.geometry`) — the torch stand-in the
+    cascade accepts."""
 
     def render_diffuse_flash(normal: torch.Tensor, diffuse: torch.Tensor) -> torch.Tensor:
         return render_diffuse_point_light(normal, diffuse, NEAR_CAMERA, intensity, NEAR_CAMERA)

@@ -34,13 +34,12 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
+from ..colour import LUMINANCE
 from ..errors import InputError
 from ..svbrdf import SVBRDF
 from .color import hsv_to_rgb, rgb_to_hsv
 from .noise import fbm, grid, smoothstep
 from .normals import normals_to_slopes, slopes_to_normals
-
-_LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 
 def _with(m: SVBRDF, normal, diffuse, specular, roughness, tag: str) -> SVBRDF:
@@ -141,7 +140,7 @@ def jitter_diffuse(diffuse: np.ndarray, hue: float = 0.0, saturation: float = 1.
     hsv[..., 1] = np.clip(hsv[..., 1] * saturation, 0.0, 1.0)
     hsv[..., 2] = hsv[..., 2] * brightness
     rgb = hsv_to_rgb(hsv)
-    mean = float((rgb @ _LUMA).mean())
+    mean = float((rgb @ LUMINANCE).mean())
     return np.clip(mean + contrast * (rgb - mean), 0.0, 1.0).astype(np.float32)
 
 

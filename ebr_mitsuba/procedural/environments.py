@@ -41,6 +41,7 @@ import math
 
 import numpy as np
 
+from ..colour import LUMINANCE
 from ..errors import InputError
 from ..geometry import DEFAULT_FLASH_INTENSITY, NEAR_DISTANCE
 from ..sgenv import SGEnvironment
@@ -49,8 +50,6 @@ ENV_KINDS = ("sun_sky", "window", "overcast")
 INTENSITY_LEVELS: dict[str, float] = {"low": 0.2, "medium": 1.0, "high": 3.0}
 #: Irradiance of the default flash at the sample centre (W/sr / distance²).
 FLASH_IRRADIANCE = DEFAULT_FLASH_INTENSITY / NEAR_DISTANCE ** 2
-#: Rec. 709 luminance weights (linear RGB).
-LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 IRRADIANCE_NODES = 64
 
 

@@ -32,7 +32,8 @@ import numpy as np
 def grid(height: int, width: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Pixel-centre texture coordinates: ``u = (j + ½)/W``, ``v = (i + ½)/H``, each (H, W).
 
-    Row 0 (``v`` small) is the top of the image, i.e. world +y (DESIGN §3).
+    Row 0 (``v`` small) is the top of the image, i.e. world +y (``docs/conventions.md``, "Geometry
+    and pixel grid").
     """
     width = height if width is None else width
     u = (np.arange(width, dtype=np.float64) + 0.5) / width

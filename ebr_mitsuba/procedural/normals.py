@@ -1,8 +1,8 @@
 """Tangent-space normals from height fields, and the slope-space form used to blend normals.
 
-Conventions (DESIGN §3): the sample is [-1, 1]² (2 world units wide), row 0 of an (H, W) map is the
-top (world +y), column 0 the left (world −x); normals are OpenGL (+Y up) tangent-space unit vectors.
-A height field ``h`` (H, W) in world units gives
+Conventions (``docs/conventions.md``, "Geometry and pixel grid"): the sample is [-1, 1]² (2 world
+units wide), row 0 of an (H, W) map is the top (world +y), column 0 the left (world −x); normals are
+OpenGL (+Y up) tangent-space unit vectors. A height field ``h`` (H, W) in world units gives
 
     n ∝ (−∂h/∂x, −∂h/∂y, 1),   ∂h/∂x = Δh/Δcolumn · W/2,   ∂h/∂y = −Δh/Δrow · H/2
 

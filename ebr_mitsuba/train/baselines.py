@@ -2,10 +2,10 @@
 
 * :class:`MeanMaps` — baseline (a): every sample gets the training set's per-pixel mean maps
   (normals averaged as vectors and renormalised), whatever the photos show.
-* :func:`oracle_constant` — the "oracle constant" of the EBREnv protocol (DESIGN §6): each test
-  sample gets its *own* ground truth's spatial mean, one value per map (normals averaged as
-  vectors and renormalised). No estimator can know these means; a model that does not beat them
-  recovers no spatial structure that pays off.
+* :func:`oracle_constant` — the "oracle constant" of the evaluation protocol
+  (``docs/conventions.md``, "Metrics"): each test sample gets its *own* ground truth's spatial
+  mean, one value per map (normals averaged as vectors and renormalised). No estimator can know
+  these means; a model that does not beat them recovers no spatial structure that pays off.
 
 Baseline (b), the same network trained without exemplars, is a checkpoint of its own
 (``configs/train_small_noexemplars.toml``) evaluated like any model.

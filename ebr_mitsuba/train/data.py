@@ -18,7 +18,8 @@ field                   shape                 content
 
 Shots and flash-only images are looked up by name (:meth:`TrainingData.shots`,
 :meth:`TrainingData.flash_only_of`), never by position: a near data set has the shots
-:data:`CAPTURE_SHOTS` ``["near"]``, a near-far one ``["near-far"]`` (DESIGN §1).
+:data:`CAPTURE_SHOTS` ``["near"]``, a near-far one ``["near-far"]`` (step 1 of
+``docs/conventions.md``, "Pipeline").
 """
 
 from __future__ import annotations

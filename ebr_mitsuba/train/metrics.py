@@ -1,6 +1,6 @@
-"""Evaluation metrics of estimated maps (DESIGN §3 "Metrics").
+"""Evaluation metrics of estimated maps (``docs/conventions.md``, "Metrics").
 
-* per-map RMSE (:func:`ebr_mitsuba.estimate.metrics.map_rmse`): normals encoded (n + 1)/2,
+* per-map RMSE (:func:`ebr_mitsuba.metrics.map_rmse`): normals encoded (n + 1)/2,
   roughness one channel, and the mean of the four;
 * re-render RMSE: the estimated and the true maps rendered under the same ``RERENDER_PAIRS`` = 30
   seeded random light/view pairs (cosine-hemisphere directions, light and camera at distance
@@ -19,8 +19,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ..estimate.metrics import map_rmse
 from ..geometry import DEFAULT_FLASH_INTENSITY
+from ..metrics import map_rmse, rmse
 from ..nets import Maps
 from ..nets import torch_brdf as tb
 from ..nets.losses import ViewLightPairs, sample_view_light_pairs
@@ -54,18 +54,17 @@ def rerender_metrics(
     from ..imageio import linear_to_srgb
 
     a, b = rerenders(estimate, pairs, intensity), rerenders(truth, pairs, intensity)
-    rmse = float(np.sqrt(np.mean((a.astype(np.float64) - b) ** 2)))
     sa, sb = linear_to_srgb(np.clip(a, 0, 1)), linear_to_srgb(np.clip(b, 0, 1))
-    return rmse, float(np.mean([ssim(x, y, data_range=1.0) for x, y in zip(sa, sb)]))
+    return rmse(a, b), float(np.mean([ssim(x, y, data_range=1.0) for x, y in zip(sa, sb)]))
 
 
 def sample_metrics(
     estimate: SVBRDF, truth: SVBRDF, pairs: ViewLightPairs, intensity: float = DEFAULT_FLASH_INTENSITY
 ) -> dict:
     """``{"per_map_rmse": {...}, "rerender_rmse", "ssim"}`` of one sample."""
-    rmse, s = rerender_metrics(estimate, truth, pairs, intensity)
+    err, s = rerender_metrics(estimate, truth, pairs, intensity)
     per_map = map_rmse(estimate, truth)
-    return {"per_map_rmse": {k: per_map[k] for k in MAP_KEYS}, "rerender_rmse": rmse, "ssim": s}
+    return {"per_map_rmse": {k: per_map[k] for k in MAP_KEYS}, "rerender_rmse": err, "ssim": s}
 
 
 def average(rows: list[dict]) -> dict:

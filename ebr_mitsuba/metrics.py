@@ -1,0 +1,108 @@
+"""Error metrics: the definitions of ``docs/conventions.md`` ("Metrics"), in one place.
+
+=================================  ===========================================================================
+function                           definition (float64, over every pixel, channel and image given)
+=================================  ===========================================================================
+:func:`rmse`                       √mean((a − b)²)
+:func:`rms`                        √mean(a²)
+:func:`rel_rmse`                   rmse(a, ref) / rms(ref); ``inf`` when either holds a non-finite value;
+                                   for an all-zero ``ref``: 0 when ``a`` is zero too, else ``inf``
+:func:`image_errors`               ``{"rmse", "rel_rmse"}`` over the unmasked pixels, ``rel_rmse`` = rmse /
+                                   rms of the target; ``nan`` where undefined (empty mask, black target)
+:func:`lighting_error`             :func:`image_errors` of renders under the estimated SGs against the same
+                                   renders under the true environment (exemplars, a test material); the
+                                   benchmarks rank on its :func:`rel_rmse` (``extract.evaluate``)
+:func:`noise_corrected_rel_rmse`   √(max(Σ(a − ref)² − noise2, 0) / Σ ref²): the relative error left once the
+                                   expected Monte-Carlo noise energy ``noise2`` of the pair is removed
+:func:`map_rmse`                   RMSE per map (normals encoded (n + 1)/2, roughness one channel) and the
+                                   mean of the four; ground truth of another size is area-resampled to the
+                                   estimate's grid first
+=================================  ===========================================================================
+
+:func:`rel_rmse` judges (benchmarks, ``ebr validate``, ``ebr extract-sg``'s ``rel_rmse_exemplars``): a
+broken render must lose, hence ``inf``. :func:`image_errors` reports (``ebr estimate``, ``ebr demo``):
+a value that does not exist is ``nan``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def rmse(a: np.ndarray, b: np.ndarray) -> float:
+    """√mean((a − b)²) in float64."""
+    return float(np.sqrt(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2)))
+
+
+def rms(a: np.ndarray) -> float:
+    """√mean(a²) in float64."""
+    return float(np.sqrt(np.mean(np.asarray(a, np.float64) ** 2)))
+
+
+def rel_rmse(estimate: np.ndarray, reference: np.ndarray) -> float:
+    """``rmse(estimate, reference) / rms(reference)`` (module docstring for the edge cases)."""
+    a, ref = np.asarray(estimate, np.float64), np.asarray(reference, np.float64)
+    if not (np.all(np.isfinite(a)) and np.all(np.isfinite(ref))):
+        return float("inf")
+    num, den = rmse(a, ref), rms(ref)
+    if den > 0:
+        return num / den
+    return 0.0 if num == 0 else float("inf")
+
+
+def image_errors(render: np.ndarray, target: np.ndarray, mask: np.ndarray | None = None) -> dict:
+    """``{"rmse", "rel_rmse"}`` of ``render`` against ``target`` (same shape) over the pixels where
+    ``mask`` (the leading axes of the images) is true; all pixels without a mask."""
+    render, target = np.asarray(render, np.float64), np.asarray(target, np.float64)
+    if mask is not None:
+        m = np.asarray(mask).astype(bool)
+        if not m.any():
+            return {"rmse": float("nan"), "rel_rmse": float("nan")}
+        render, target = render[m], target[m]
+    err, norm = rmse(render, target), rms(target)
+    return {"rmse": err, "rel_rmse": err / norm if norm > 0 else float("nan")}
+
+
+def lighting_error(estimate_renders: np.ndarray, truth_renders: np.ndarray) -> dict:
+    """The lighting error (``docs/conventions.md``, "Metrics"): :func:`image_errors` of renders
+    (exemplars, or the held-out test material) under the estimated SGs against the same renders
+    under the true environment, over all renders given."""
+    return image_errors(estimate_renders, truth_renders)
+
+
+def noise_corrected_rel_rmse(estimate: np.ndarray, reference: np.ndarray, noise2: float) -> float:
+    """Relative error of ``estimate`` against a noisy ``reference`` with the expected noise energy
+    ``noise2`` (Σ of the squared noise over all values) removed (module docstring)."""
+    a, ref = np.asarray(estimate, np.float64), np.asarray(reference, np.float64)
+    e2 = float(np.sum((a - ref) ** 2)) - noise2
+    return float(np.sqrt(max(e2, 0.0) / max(float(np.sum(ref**2)), 1e-300)))
+
+
+def map_rmse(estimate, truth) -> dict[str, float]:
+    """``{"normal", "diffuse", "specular", "roughness", "mean"}`` RMSE of the SVBRDF ``estimate``
+    against ``truth`` (module docstring)."""
+    from .materials import resample_svbrdf
+    from .svbrdf import MAP_NAMES
+
+    if truth.shape != estimate.shape:
+        truth = resample_svbrdf(truth, estimate.shape)
+    out = {}
+    for name in MAP_NAMES:
+        if name == "normal":
+            a, b = estimate.encoded_normal(), truth.encoded_normal()
+        else:
+            a, b = getattr(estimate, name), getattr(truth, name)
+        out[name] = rmse(a, b)
+    out["mean"] = float(np.mean([out[n] for n in MAP_NAMES]))
+    return out
+
+
+__all__ = [
+    "image_errors",
+    "lighting_error",
+    "map_rmse",
+    "noise_corrected_rel_rmse",
+    "rel_rmse",
+    "rms",
+    "rmse",
+]
