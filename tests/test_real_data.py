@@ -177,3 +177,16 @@ def test_material_class_of_rows():
 
     assert material_class({"material": "procedural:tiles:12"}) == "procedural:tiles"
     assert material_class({"material": str(SHARED / "materials" / "Metal009")}) == "metal"
+
+
+def test_batched_ssim_equals_the_reference_per_pair():
+    from ebr_mitsuba.extract.msssim import ssim, ssim_many
+
+    rng = np.random.default_rng(5)
+    a = rng.uniform(0, 1, (3, 24, 20, 3))
+    b = np.clip(a + rng.normal(0, 0.1, a.shape), 0, 1)
+    got = ssim_many(a, b, data_range=1.0)
+    want = [ssim(x, y, data_range=1.0) for x, y in zip(a, b)]
+    np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-12)
+    with pytest.raises(InputError, match="smaller than"):
+        ssim_many(a[:, :8], b[:, :8], data_range=1.0)

@@ -50,12 +50,12 @@ def rerender_metrics(
     estimate: SVBRDF, truth: SVBRDF, pairs: ViewLightPairs, intensity: float = DEFAULT_FLASH_INTENSITY
 ) -> tuple[float, float]:
     """(re-render RMSE, mean SSIM) of ``estimate`` against ``truth`` (same grid)."""
-    from ..extract.msssim import ssim
+    from ..extract.msssim import ssim_many
     from ..imageio import linear_to_srgb
 
     a, b = rerenders(estimate, pairs, intensity), rerenders(truth, pairs, intensity)
     sa, sb = linear_to_srgb(np.clip(a, 0, 1)), linear_to_srgb(np.clip(b, 0, 1))
-    return rmse(a, b), float(np.mean([ssim(x, y, data_range=1.0) for x, y in zip(sa, sb)]))
+    return rmse(a, b), float(np.mean(ssim_many(sa, sb, data_range=1.0)))
 
 
 def sample_metrics(
