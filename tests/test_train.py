@@ -436,38 +436,31 @@ def test_cli_eval_json(tiny, tiny_model, capsys):
 
 
 def test_bench_models_page(tiny, tiny_model, tmp_path, monkeypatch):
-    """``ebr bench models`` on tiny data: every predictor scored, the page and plots written."""
+    """``ebr bench models`` on tiny data: every predictor scored on the same samples, the page,
+    the contact sheet and the plots written, the acceptance lines computed."""
     from ebr_mitsuba.bench import models
     from ebr_mitsuba.train import inference
 
-    for name in ("EBR_TRAIN_DATA", "EBR_TEST_DATA", "EBR_RUNS"):
+    for name in ("EBR_SPLIT_DATA", "EBR_TRAIN_DATA", "EBR_SHIPPED_RUN", "EBR_CANDIDATES"):
         monkeypatch.delenv(name, raising=False)
-    assert "EBR_TRAIN_DATA" in models.unavailable()
-    runs = tmp_path / "runs"
-    (runs / "small").mkdir(parents=True)
-    shutil.copy(tiny_model.parent / "log.csv", runs / "small" / "log.csv")
-    for run in ("noex", "nocas"):
-        (runs / run).mkdir()
-        shutil.copy(tiny_model, runs / run / "model.pt")
+    assert "EBR_SPLIT_DATA" in models.unavailable()
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    shutil.copy(tiny_model.parent / "log.csv", run_dir / "log.csv")
+    monkeypatch.setenv("EBR_SPLIT_DATA", str(tiny))
     monkeypatch.setenv("EBR_TRAIN_DATA", str(tiny))
-    monkeypatch.setenv("EBR_TEST_DATA", str(tiny))
-    monkeypatch.setenv("EBR_RUNS", str(runs))
+    monkeypatch.setenv("EBR_SHIPPED_RUN", str(run_dir))
+    monkeypatch.setenv("EBR_CANDIDATES", f"previous={tiny_model}")
     monkeypatch.setattr(inference, "shipped_model_path", lambda: tiny_model)
     assert models.unavailable() is None
     page = models.run(tmp_path / "docs", quick=True, log=lambda msg: None)
     text = page.read_text()
-    for row in (
-        "| shipped model |",
-        "| (a) training-set mean maps |",
-        "| (b) without exemplars |",
-        "| without cascade |",
-        "| without adaptive selection",
-    ):
+    for row in ("| shipped model |", "| previous |", "| oracle constant |", "| training-set mean maps |",
+                "| EBREnv paper"):
         assert row in text
-    assert "quick run" in text and "| lighting | 2 |" in text
-    assert (tmp_path / "docs" / "models_loss.png").is_file() and (
-        tmp_path / "docs" / "models_eval.png"
-    ).is_file()
-    shutil.rmtree(runs / "nocas")
-    with pytest.raises(InputError, match="nocas"):
+    assert "quick run" in text and "| lighting | 2 |" in text and "**previous**:" in text
+    for png in ("models_loss.png", "models_maps.png", "models_classes.png"):
+        assert (tmp_path / "docs" / png).is_file()
+    monkeypatch.setenv("EBR_CANDIDATES", "broken")
+    with pytest.raises(InputError, match="EBR_CANDIDATES"):
         models.run(tmp_path / "docs2", quick=True, log=lambda msg: None)

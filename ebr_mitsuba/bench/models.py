@@ -1,25 +1,25 @@
-"""``ebr bench models``: the shipped model against its baselines and ablations; writes models.md.
+"""``ebr bench split``: every model and baseline on the fixed test split (``docs/conventions.md``,
+"Metrics"); writes ``test_split.md`` with ``test_split_maps.png`` (contact sheet) and
+``test_split_classes.png``.
 
-:func:`run` writes ``<out_dir>/models.md`` with ``models_loss.png`` and ``models_eval.png`` beside
-it (``ebr bench models`` uses ``--out docs`` by default: the page is ``docs/models.md``).
+The protocol is EBREnv's Table 1, near field: test captures of the real material sets and HDR maps
+of ``scenes/test_split.toml`` (``configs/data_real_test.toml``: Mitsuba, 256 spp, 256²), per-map
+RMSE (normals as (n+1)/2, roughness one channel) and their mean, re-render RMSE and SSIM under 30
+seeded held-out point lights (:mod:`ebr_mitsuba.train.metrics`), per material class, all
+predictors on the same samples and lights:
 
-**Inputs.** The data sets and the training runs are not in the repository; three environment
-variables name them (the page's first section lists the commands that make them):
+* the shipped model (``ebr_mitsuba/models``), and every checkpoint named in ``EBR_CANDIDATES``
+  (``name=path`` separated by ``;``: a new model, the previous model, the model without exemplars);
+* the oracle constant: each sample's own ground-truth mean maps
+  (:func:`ebr_mitsuba.train.baselines.oracle_constant`);
+* the training-set mean maps (``EBR_TRAIN_DATA``, when set).
 
-* ``EBR_TRAIN_DATA``: the shipped model's training set (``configs/data_small_train.toml``), for
-  baseline (a), the per-pixel mean maps of the training set;
-* ``EBR_TEST_DATA``: the held-out set (``configs/data_small_test.toml``): real texture sets,
-  procedural families left out of training, HDR environment maps never seen in training;
-* ``EBR_RUNS``: the folder holding the runs ``small/`` (the shipped model's, for the training
-  summary), ``noex/`` (``configs/train_small_noexemplars.toml``: baseline (b)) and ``nocas/``
-  (``configs/train_small_nocascade.toml``: the "without cascade" ablation).
+The normal-structure figure is the per-sample spatial standard deviation of the predicted
+normals' x and y components over the truth's (1 = as much structure as the truth).
 
-**What is measured.** :func:`ebr_mitsuba.train.evaluate.evaluate` on every held-out sample, all
-predictors on the same samples and the same 30 seeded re-render light/view pairs (``docs/conventions.md``
-metrics): the shipped model (``ebr_mitsuba/models/ebrenv_small.pt``), baseline (a), baseline (b),
-and the paper's §5.3.2 ablations: without cascade (one joint net for all maps), without
-exemplars (= baseline (b)) and without adaptive selection (the shipped model with both exemplar
-roughnesses fixed at :data:`FIXED_ROUGHNESS`).
+Inputs: ``EBR_SPLIT_DATA`` names the generated test set; ``EBR_SHIPPED_RUN`` (optional) the
+training run of the shipped model, for the training summary (the page's first section has the
+commands).
 """
 
 from __future__ import annotations
@@ -27,52 +27,46 @@ from __future__ import annotations
 import csv
 import json
 import os
-import platform
 import time
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
+from ._common import machine
 
 DEFAULT_OUT = "docs"
-FIXED_ROUGHNESS = 0.5
-QUICK_LIMIT = 3
+QUICK_LIMIT = 2
+THUMB = 96  # contact-sheet thumbnail size
 COLUMNS = ("normal", "diffuse", "roughness", "specular", "mean")
+# EBREnv (Table 1, near field; their test set is MatSynth renders, not this split).
+PAPER_ROW = {"normal": 0.0351, "diffuse": 0.0285, "roughness": 0.0718, "specular": 0.0446,
+             "rerender_rmse": 0.0394}
 REGENERATE = """\
-export EBR_DATA_DIR=../shared/data EBR_TRAIN_DATA=/tmp/ebr-data/small_train \\
-       EBR_TEST_DATA=/tmp/ebr-data/small_test EBR_RUNS=/tmp/ebr-runs
-ebr generate configs/data_small_train.toml --out $EBR_TRAIN_DATA --workers 2
-ebr generate configs/data_small_test.toml --out $EBR_TEST_DATA --workers 2
-ebr train configs/train_small.toml --out $EBR_RUNS/small --export ebr_mitsuba/models/ebrenv_small.pt
-EBR_INIT=$EBR_RUNS/small/after_lighting.pt ebr train configs/train_small_noexemplars.toml --out $EBR_RUNS/noex
-EBR_INIT=$EBR_RUNS/small/after_lighting.pt ebr train configs/train_small_nocascade.toml --out $EBR_RUNS/nocas
-ebr bench models            # this page"""
+export EBR_DATA_DIR=../shared/data EBR_SPLIT_DATA=/tmp/ebr-data/real_test \\
+       EBR_TRAIN_DATA=/tmp/ebr-data/real_train
+ebr generate configs/data_real_test.toml --out $EBR_SPLIT_DATA --workers 2
+ebr generate configs/data_real_train.toml --out $EBR_TRAIN_DATA --workers 2   # for the mean-maps baseline
+EBR_TRAIN_DATA=/tmp/ebr-data/real_train EBR_INIT=ebr_mitsuba/models/ebrenv_small.pt \\
+  ebr train configs/train_real.toml --out /tmp/ebr-runs/real --export ebr_mitsuba/models/ebrenv_small.pt
+EBR_SHIPPED_RUN=/tmp/ebr-runs/real EBR_CANDIDATES="previous=PREVIOUS.pt" ebr bench models  # this page"""
 
 
 def unavailable() -> str | None:
     """Why this benchmark cannot run here (``ebr bench all`` skips it then), or None."""
-    missing = [n for n in ("EBR_TRAIN_DATA", "EBR_TEST_DATA", "EBR_RUNS") if not os.environ.get(n)]
-    return f"set {', '.join('$' + n for n in missing)}; see docs/models.md" if missing else None
+    return None if os.environ.get("EBR_SPLIT_DATA") else "set $EBR_SPLIT_DATA; see docs/models.md"
 
 
-def _env_path(name: str) -> Path:
-    value = os.environ.get(name)
-    if not value:
-        raise InputError(
-            f"${name} is not set; 'ebr bench models' needs it (see the docstring of ebr_mitsuba.bench.models)"
-        )
-    path = Path(value).expanduser()
-    if not path.exists():
-        raise InputError(f"${name} = {path}: does not exist; make it with the commands in docs/models.md")
-    return path
-
-
-def _checkpoint(runs: Path, run: str) -> Path:
-    path = runs / run / "model.pt"
-    if not path.is_file():
-        raise InputError(f"{path}: missing; train it with the commands in docs/models.md")
-    return path
+def _candidates() -> list[tuple[str, Path]]:
+    out = []
+    for spec in filter(None, (s.strip() for s in os.environ.get("EBR_CANDIDATES", "").split(";"))):
+        name, sep, path = spec.partition("=")
+        if not sep or not name or not path:
+            raise InputError(f"EBR_CANDIDATES: {spec!r}; write NAME=CHECKPOINT[;NAME=CHECKPOINT...]")
+        if not Path(path).is_file():
+            raise InputError(f"EBR_CANDIDATES: {path}: no such checkpoint")
+        out.append((name, Path(path)))
+    return out
 
 
 def training_summary(run_dir: Path) -> dict:
@@ -126,53 +120,6 @@ def objective_text(loss: dict) -> str:
     return text + "."
 
 
-def _row(name: str, m: dict) -> str:
-    p = m["per_map_rmse"]
-    cells = [f"{p[k]:.4f}" for k in COLUMNS]
-    sec = f"{m['seconds_per_sample']:.2f}" if "seconds_per_sample" in m else "–"
-    return f"| {name} | " + " | ".join(cells) + f" | {m['rerender_rmse']:.4f} | {m['ssim']:.3f} | {sec} |"
-
-
-def _short(spec: str) -> str:
-    """A material or environment spec without its folder (``.../materials/Metal009`` → ``Metal009``)."""
-    return spec if spec.startswith("procedural:") else Path(spec).name
-
-
-def _outliers(main: dict, base: dict, count: int = 6) -> list[str]:
-    """Where the shipped model's re-render error exceeds the mean maps' most: the samples with the
-    largest excess and their share of the total excess (computed, per sample, same pairs)."""
-    rows = [
-        (m["rerender_rmse"] - b["rerender_rmse"], m, b)
-        for m, b in zip(main["per_sample"], base["per_sample"])
-    ]
-    total = sum(d for d, _, _ in rows)
-    worst = sorted(rows, key=lambda r: r[0], reverse=True)[:count]
-    if total <= 0 or not worst or worst[0][0] <= 0:
-        return []
-    share = sum(max(d, 0.0) for d, _, _ in worst) / total
-    out = [
-        "",
-        "### Where the re-render error comes from",
-        "",
-        f"The {len(worst)} samples on which the shipped model's re-render RMSE exceeds the mean maps' "
-        f"the most carry {100 * share:.0f} % of the summed difference over all {len(rows)} samples "
-        "(positive: the model is worse). A re-render RMSE over random point lights is dominated by "
-        "highlights: a model that overestimates a sample's specular albedo pays far more than the "
-        "mean maps' conservative guess, while its lower per-map errors elsewhere move the mean little.",
-        "",
-        "| sample | material | environment | model re-render | mean maps re-render "
-        "| per-map RMSE, model / mean maps |",
-        "|---:|---|---|---:|---:|---:|",
-    ]
-    for _, m, b in worst:
-        out.append(
-            f"| {m['index']} | {_short(str(m['material']))} | {_short(str(m['env']))} | "
-            f"{m['rerender_rmse']:.3f} | "
-            f"{b['rerender_rmse']:.3f} | {m['per_map_rmse']['mean']:.3f} / {b['per_map_rmse']['mean']:.3f} |"
-        )
-    return out
-
-
 def _plot_loss(summary: dict, path: Path) -> None:
     import matplotlib
 
@@ -193,23 +140,63 @@ def _plot_loss(summary: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def _plot_eval(results: dict[str, dict], path: Path) -> None:
+def _normal_spread(maps) -> float:
+    return float(np.mean(maps.normal[..., :2].reshape(-1, 2).std(axis=0)))
+
+
+def _recording(predict, store: list):
+    """Wrap a predictor: keep each estimate's normal spread and a small copy of its maps."""
+    from ..materials import resample_svbrdf
+
+    def run(item, names):
+        est = predict(item, names)
+        store.append((_normal_spread(est), resample_svbrdf(est, THUMB)))
+        return est
+
+    return run
+
+
+def _row(name: str, m: dict, extra: str = "") -> str:
+    pm = m["per_map_rmse"]
+    cells = " | ".join(f"{pm[k]:.4f}" for k in COLUMNS)
+    return f"| {name} | {cells} | {m['rerender_rmse']:.4f} | {m['ssim']:.3f} | {extra} |"
+
+
+def _sheet(truths, rows: dict[str, list], path: Path) -> None:
+    """Contact sheet: per test sample, the truth's maps then each predictor's maps."""
+    from ..imageio import linear_to_srgb, write_png
+
+    def tiles(m):
+        rough = np.repeat(m.roughness[..., None], 3, axis=2)
+        return [(m.normal + 1) / 2, linear_to_srgb(np.clip(m.diffuse, 0, 1)),
+                linear_to_srgb(np.clip(m.specular, 0, 1)), rough]
+
+    gap = 2
+    lines = []
+    for i, truth in enumerate(truths):
+        parts = tiles(truth)
+        for name in rows:
+            parts += [np.ones_like(parts[0])[:, :gap]] + tiles(rows[name][i][1])
+        lines.append(np.concatenate([np.pad(p, ((0, 0), (0, gap), (0, 0)), constant_values=1) for p in parts],
+                                    axis=1))
+        lines.append(np.ones((gap, lines[-1].shape[1], 3)))
+    write_png(path, np.concatenate(lines, axis=0), encode="linear")
+
+
+def _plot_classes(results: dict[str, dict], path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    keys = (*COLUMNS, "rerender")
-    names = list(results)
-    width = 0.8 / len(names)
-    fig, ax = plt.subplots(figsize=(8, 3.2))
-    x = np.arange(len(keys))
-    for i, name in enumerate(names):
-        m = results[name]
-        vals = [m["per_map_rmse"][k] for k in COLUMNS] + [m["rerender_rmse"]]
-        ax.bar(x + (i - (len(names) - 1) / 2) * width, vals, width, label=name)
-    ax.set_xticks(x, keys)
-    ax.set_ylabel("RMSE (held-out set)")
+    classes = sorted(next(iter(results.values()))["classes"])
+    fig, ax = plt.subplots(figsize=(9, 3.2))
+    width = 0.8 / len(results)
+    for k, (name, res) in enumerate(results.items()):
+        vals = [res["classes"][c]["per_map_rmse"]["mean"] for c in classes]
+        ax.bar(np.arange(len(classes)) + k * width, vals, width, label=name)
+    ax.set_xticks(np.arange(len(classes)) + 0.4 - width / 2, classes, rotation=30, ha="right", fontsize=8)
+    ax.set_ylabel("mean per-map RMSE")
     ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=80)
@@ -217,172 +204,200 @@ def _plot_eval(results: dict[str, dict], path: Path) -> None:
 
 
 def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Path:
-    """Evaluate and write ``out_dir/models.md``; ``quick`` scores :data:`QUICK_LIMIT` samples."""
+    """Evaluate every predictor on ``$EBR_SPLIT_DATA`` and write ``out_dir/models.md``."""
     from ..commands._common import progress
+    from ..data.dataset import GeneratedDataset
     from ..fsutil import atomic_write_text
     from ..train.baselines import MeanMaps
-    from ..train.evaluate import evaluate, group_means, material_group, model_predictor
+    from ..train.evaluate import (
+        _truth,
+        evaluate,
+        group_means,
+        material_class,
+        model_predictor,
+        oracle_predictor,
+    )
+    from ..train.inference import load_model
+
+    data = os.environ.get("EBR_SPLIT_DATA")
+    if not data or not Path(data).is_dir():
+        raise InputError(f"$EBR_SPLIT_DATA = {data!r}: not a data set; make it with the commands in "
+                         f"docs/models.md")
+    out_dir = Path(out_dir)
+    limit = QUICK_LIMIT if quick else 0
+    ds = GeneratedDataset(data)
+    n = len(ds) if limit <= 0 else min(limit, len(ds))
+    truth_maps = [_truth(ds[i]) for i in range(n)]
+    truth_spread = [_normal_spread(t) for t in truth_maps]
+
+    predictors = [("shipped model", model_predictor(load_model(None)))]
+    predictors += [(name, model_predictor(load_model(path))) for name, path in _candidates()]
+    predictors.append(("oracle constant", oracle_predictor))
+    train = os.environ.get("EBR_TRAIN_DATA")
+    if train:
+        mean = MeanMaps.from_dataset(train)
+        predictors.append(("training-set mean maps",
+                           lambda item, names: mean.predict(tuple(item["maps"].shape[1:]))))
+
+    t0 = time.perf_counter()
+    results, records = {}, {}
+    for name, predict in predictors:
+        store: list = []
+        log(f"[bench split] {name}")
+        res = evaluate(_recording(predict, store), data, limit=n, seed=0, progress=progress)
+        res["classes"] = group_means(res["per_sample"], material_class)
+        res["normal_structure"] = float(np.mean([s / max(t, 1e-6) for (s, _), t in zip(store, truth_spread)]))
+        results[name], records[name] = res, store
+    seconds = time.perf_counter() - t0
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    _sheet([_small(t) for t in truth_maps], records, out_dir / "models_maps.png")
+    _plot_classes(results, out_dir / "models_classes.png")
+    run_dir = os.environ.get("EBR_SHIPPED_RUN")
+    summary = training_summary(Path(run_dir)) if run_dir else None
+    if summary:
+        _plot_loss(summary, out_dir / "models_loss.png")
+    page = _page(results, ds, n, seconds, quick, summary, run_dir)
+    atomic_write_text(out_dir / "models.md", page)
+    atomic_write_text(out_dir / "models.json", json.dumps(
+        {k: {kk: vv for kk, vv in v.items() if kk != "per_sample"} for k, v in results.items()},
+        indent=1, default=float) + "\n")
+    return out_dir / "models.md"
+
+
+def _small(m):
+    from ..materials import resample_svbrdf
+
+    return resample_svbrdf(m, THUMB)
+
+
+def _acceptance(results: dict) -> list[str]:
+    oracle = results["oracle constant"]
+    lines = []
+    for name, res in results.items():
+        if name in ("oracle constant", "training-set mean maps"):
+            continue
+        pm, po = res["per_map_rmse"], oracle["per_map_rmse"]
+        structure = res["normal_structure"]
+        checks = [
+            (f"mean per-map RMSE {pm['mean']:.4f} ≤ 0.045", pm["mean"] <= 0.045),
+            (f"below the oracle constant on the mean ({pm['mean']:.4f} vs {po['mean']:.4f}), diffuse "
+             f"({pm['diffuse']:.4f} vs {po['diffuse']:.4f}) and normal "
+             f"({pm['normal']:.4f} vs {po['normal']:.4f})",
+             pm["mean"] < po["mean"] and pm["diffuse"] < po["diffuse"] and pm["normal"] < po["normal"]),
+            (f"specular RMSE {pm['specular']:.4f} ≤ 0.040", pm["specular"] <= 0.040),
+            (f"re-render RMSE {res['rerender_rmse']:.4f} at least 20 % below the oracle's "
+             f"{oracle['rerender_rmse']:.4f}", res["rerender_rmse"] <= 0.8 * oracle["rerender_rmse"]),
+            (f"normal structure {structure:.2f} ≥ 0.5 of the truth's", structure >= 0.5),
+        ]
+        verdicts = "; ".join(f"{text} — {'yes' if ok else 'no'}" for text, ok in checks)
+        lines.append(f"- **{name}**: {verdicts}")
+    return lines
+
+
+def _model_card(summary: dict | None, run_dir: str | None) -> list[str]:
     from ..train.inference import load_model, shipped_model_path
 
-    train_data, test_data, runs = (_env_path(n) for n in ("EBR_TRAIN_DATA", "EBR_TEST_DATA", "EBR_RUNS"))
-    noex, nocas = _checkpoint(runs, "noex"), _checkpoint(runs, "nocas")
-    summary = training_summary(runs / "small")
-    limit = QUICK_LIMIT if quick else 0
-    t_start = time.perf_counter()
-
-    shipped = load_model(None)
-    mean = MeanMaps.from_dataset(train_data)
-    predictors = {
-        "shipped model": model_predictor(shipped),
-        "(a) training-set mean maps": lambda item, names: mean.predict(tuple(item["maps"].shape[1:])),
-        "(b) without exemplars": model_predictor(load_model(noex)),
-        "without cascade": model_predictor(load_model(nocas)),
-        f"without adaptive selection (r = {FIXED_ROUGHNESS})": model_predictor(shipped, FIXED_ROUGHNESS),
-    }
-    results = {}
-    for name, pred in predictors.items():
-        log(f"[models] {name}")
-        r = evaluate(pred, test_data, limit=limit, seed=0, progress=progress)
-        r["groups"] = group_means(r["per_sample"], material_group)
-        results[name] = r
-    seconds = time.perf_counter() - t_start
-
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    _plot_loss(summary, out_dir / "models_loss.png")
-    _plot_eval({k: v for k, v in results.items()}, out_dir / "models_eval.png")
-
-    import torch
-
-    model_mb = shipped_model_path().stat().st_size / 1e6
-    params = sum(p.numel() for net in shipped.nets().values() for p in net.parameters())
-    main = results["shipped model"]
-    base_a, base_b = results["(a) training-set mean maps"], results["(b) without exemplars"]
-    n = main["n"]
-
-    def beats(other: dict) -> str:
-        wins = [k for k in ("mean",) if main["per_map_rmse"][k] < other["per_map_rmse"][k]]
-        rr = main["rerender_rmse"] < other["rerender_rmse"]
-        return (
-            f"mean per-map RMSE {main['per_map_rmse']['mean']:.4f} vs {other['per_map_rmse']['mean']:.4f} "
-            f"({'lower' if wins else 'NOT lower'}), re-render RMSE {main['rerender_rmse']:.4f} vs "
-            f"{other['rerender_rmse']:.4f} ({'lower' if rr else 'NOT lower'})"
-        )
-
-    header = "| predictor | normal | diffuse | roughness | specular | mean | re-render | SSIM | s / sample |"
-    rule = "|---|---:|---:|---:|---:|---:|---:|---:|---:|"
+    bundle = load_model(None)
+    params = sum(p.numel() for net in bundle.nets().values() for p in net.parameters())
+    size_mb = shipped_model_path().stat().st_size / 1e6
     lines = [
-        "# The shipped model: training summary and held-out evaluation",
+        "## The shipped model",
         "",
-        "Generated by `ebr bench models` (`ebr_mitsuba/bench/models.py`); do not edit by hand.",
-        f"Machine: {platform.machine()}, {os.cpu_count()} logical cores (shared), torch {torch.__version__}, "
-        f"{time.strftime('%Y-%m-%d')}; evaluation took {seconds:.0f} s"
-        + (f"; **quick run: {n} samples only, not the documented figures**." if quick else "."),
+        f"`ebr_mitsuba/models/{shipped_model_path().name}` is what `ebr estimate`, `ebr demo` and `ebr eval` "
+        "use when no `--checkpoint` is given: the EBREnv lighting net and cascade "
+        f"([conventions](conventions.md#pipeline)) on a {bundle.resolution}² grid, {params / 1e6:.2f} M "
+        f"parameters, {size_mb:.1f} MB (float16 weights).",
         "",
-        "`ebr_mitsuba/models/ebrenv_small.pt` is what `ebr estimate`, `ebr demo` and `ebr eval` use when "
-        "no `--checkpoint` is given: the EBREnv lighting net and cascade "
-        f"([conventions](conventions.md#pipeline)) at the NAFNet `small` size on a 64² grid, "
-        f"{params / 1e6:.2f} M parameters, {model_mb:.1f} MB (float16 weights).",
-        "",
-        "## How it is made (and how to regenerate every table here)",
-        "",
-        "```",
-        REGENERATE,
-        "```",
-        "",
-        "Training data: 1200 near flash / no-flash captures at 64² of six procedural families "
-        "(tiles, wood, metal, leather, plaster, fabric; 30 % two-material blends) under procedural "
-        "SG environments (sun + sky, window, overcast), rendered by the fast renderer (64-direction "
-        "quadrature), with exposure, white-balance and noise jitter (`configs/data_small_train.toml`).",
-        "",
-        "## Training summary",
-        "",
-        f"Run `{runs / 'small'}` on {summary['device']}, {summary['samples']} samples, one torch thread "
-        "(`configs/train_small.toml`). Stage 1 trains the lighting net, then the cascade in sequence "
-        "with exemplars selected under the true environment; stage 2 (`finetune`) fine-tunes the whole "
-        "cascade on SGs extracted from the lighting net's own exemplars. "
-        f"{objective_text(summary.get('loss', {}))} Loss columns: mean of the last four "
-        "logged values; learning rate cosine-decayed per phase.",
+    ]
+    if not summary:
+        return lines + ["(No training run given: set `EBR_SHIPPED_RUN` for the training summary.)", ""]
+    total = sum(p["seconds"] for p in summary["phases"].values())
+    lines += [
+        f"Training run `{run_dir}` on {summary['device']}, {summary['samples']} samples, "
+        f"{total / 3600:.2f} h in all. {objective_text(summary.get('loss', {}))} Loss columns: mean of the "
+        "last four logged values; learning rate cosine-decayed per phase.",
         "",
         "| phase | steps | first loss | final loss | samples / s | seconds |",
         "|---|---:|---:|---:|---:|---:|",
     ]
     for name, p in summary["phases"].items():
-        lines.append(
-            f"| {name} | {p['steps']} | {p['first_loss']:.4f} | {p['final_loss']:.4f} | "
-            f"{p['samples_per_s']:.1f} | {p['seconds']:.0f} |"
-        )
-    lines += [
-        "",
-        "![training loss per phase](models_loss.png)",
-        "",
-        "## Held-out evaluation (`ebr eval`)",
-        "",
-        f"`$EBR_TEST_DATA` ({n} samples of `configs/data_small_test.toml`): the real texture sets of "
-        "`shared/data/materials` and the procedural families `marble` and `painted` (never in training) "
-        "under the four Poly Haven HDR maps of `shared/data/envmaps` (training saw procedural SG skies "
-        "only). Metrics of [conventions](conventions.md#metrics): per-map RMSE (normals as (n+1)/2) and "
-        "their mean; re-render RMSE and SSIM over 30 seeded point-light/view pairs (seed 0); seconds per "
-        "sample of the whole prediction (lighting net, SG extraction, exemplar selection, cascade) on "
-        "this CPU. Lower is better except SSIM.",
-        "",
-        header,
-        rule,
-    ]
-    lines += [_row(name, m) for name, m in results.items()]
-    lines += [
-        "",
-        "Same command: `ebr eval --data $EBR_TEST_DATA --baseline-mean $EBR_TRAIN_DATA "
-        "--baseline-checkpoint no-exemplars=$EBR_RUNS/noex/model.pt --json` (the shipped model with "
-        "baselines (a) and (b) in one run); add `--fixed-roughness 0.5` or `--checkpoint "
-        "$EBR_RUNS/nocas/model.pt` for the ablations.",
-        "",
-        f"- against (a), the mean maps: {beats(base_a)};",
-        f"- against (b), the same network trained without exemplars: {beats(base_b)}.",
-        "",
-        "![held-out RMSE per map](models_eval.png)",
-        "",
-        "### By material source",
-        "",
-        "| predictor | group | n | mean per-map RMSE | re-render RMSE | SSIM |",
-        "|---|---|---:|---:|---:|---:|",
-    ]
-    for name, m in results.items():
-        for group, g in m["groups"].items():
-            lines.append(
-                f"| {name} | {group} | {g['n']} | {g['per_map_rmse']['mean']:.4f} | "
-                f"{g['rerender_rmse']:.4f} | "
-                f"{g['ssim']:.3f} |"
-            )
-    lines += _outliers(main, base_a)
-    lines += [
-        "",
-        "## Ablations (paper §5.3.2)",
-        "",
-        "The rows *without cascade*, *(b) without exemplars* and *without adaptive selection* above are "
-        "the paper's three ablations, measured on the same samples and pairs as the shipped model. "
-        "*Without cascade* replaces the diffuse → specular cascade by one joint net trained for the "
-        "same total steps (`configs/train_small_nocascade.toml`); *without exemplars* feeds the cascade "
-        "no exemplar images (`configs/train_small_noexemplars.toml`); *without adaptive selection* keeps "
-        f"the shipped weights and fixes both exemplar roughnesses at {FIXED_ROUGHNESS} instead of the "
-        "coarse-to-fine SSIM search (`ebr eval --fixed-roughness`). Both retrained variants start from "
-        "the shipped run's lighting net (`after_lighting.pt`).",
-        "",
-        "## Beside the EBREnv paper's Table 1",
-        "",
-        "The paper trains the full-size networks (NAFNet width 36) on 256² Mitsuba renders on a GPU and "
-        "reports per-map RMSE on its own synthetic test set. The shipped model is the `small` size on "
-        "64² fast-renderer data trained for about half an hour on two CPU cores, and it is scored on a "
-        "held-out set that differs from its training data in materials *and* lighting (real texture "
-        "sets, unseen families, real HDR maps), so its numbers are not comparable with the paper's "
-        "row by row. The paper's Table 1 values are not part of this project's reference material "
-        "(`shared/`), and none are quoted here from memory; `configs/train_paper.toml` is the "
-        "paper-size configuration for a user with a GPU, evaluated with the same `ebr eval` command.",
-        "",
-    ]
-    path = out_dir / "models.md"
-    atomic_write_text(path, "\n".join(lines))
-    return path
+        lines.append(f"| {name} | {p['steps']} | {p['first_loss']:.4f} | {p['final_loss']:.4f} | "
+                     f"{p['samples_per_s']:.1f} | {p['seconds']:.0f} |")
+    return lines + ["", "![training loss per phase](models_loss.png)", ""]
 
 
-__all__ = ["DEFAULT_OUT", "FIXED_ROUGHNESS", "run", "training_summary", "unavailable"]
+def _page(results: dict, ds, n: int, seconds: float, quick: bool, summary: dict | None = None,
+          run_dir: str | None = None) -> str:
+    from ..data.split import load_split
+
+    split = load_split()
+    head = ("| predictor | normal | diffuse | roughness | specular | mean | re-render | SSIM "
+            "| normal structure |")
+    rule = "|---|---:|---:|---:|---:|---:|---:|---:|---:|"
+    rows = [_row(k, v, f"{v['normal_structure']:.2f}") for k, v in results.items()]
+    paper = " | ".join(f"{PAPER_ROW[k]:.4f}" for k in ("normal", "diffuse", "roughness", "specular"))
+    paper_mean = np.mean([PAPER_ROW[k] for k in ("normal", "diffuse", "roughness", "specular")])
+    rows.append(f"| EBREnv paper, Table 1 near field (MatSynth test set) | {paper} | {paper_mean:.4f} | "
+                f"{PAPER_ROW['rerender_rmse']:.4f} | – | – |")
+    classes = sorted(next(iter(results.values()))["classes"])
+    chead = "| class | n | " + " | ".join(results) + " |"
+    crule = "|---|---:|" + "---:|" * len(results)
+    crows = []
+    for c in classes:
+        first = next(iter(results.values()))["classes"][c]
+        cells = " | ".join(f"{r['classes'][c]['per_map_rmse']['mean']:.4f} / "
+                           f"{r['classes'][c]['rerender_rmse']:.3f}" for r in results.values())
+        crows.append(f"| {c} | {first['n']} | {cells} |")
+    cfg = ds.dataset.get("config", {})
+    render = cfg.get("render", {})
+    res = cfg.get("dataset", {}).get("resolution", "?")
+    lines = [
+        "# The shipped model and every baseline on the fixed test split",
+        "",
+        "Generated by `ebr bench models` (`ebr_mitsuba/bench/models.py`); do not edit by hand.",
+        f"Machine: {machine()}; {time.strftime('%Y-%m-%d')}; evaluation took {seconds:.0f} s"
+        + (f"; **quick run: {n} samples only, not the documented figures**." if quick else "."),
+        "",
+        f"Test split `{split.source}`: {len(split.materials)} real material sets (every class) and "
+        f"{len(split.environments)} HDR maps, never used for training or model selection. Captures: "
+        f"{n} samples of `configs/data_real_test.toml` at {res}², renderer "
+        f"`{render.get('renderer', '?')}` at {render.get('spp', '?')} spp, near flash / no-flash. Metrics as "
+        "EBREnv Table 1: per-map RMSE (normals as (n+1)/2, roughness one channel) and their mean; re-render "
+        "RMSE and SSIM over 30 seeded held-out point lights (seed 0; linear RMSE, SSIM on sRGB-encoded "
+        "clipped renders). Normal structure: predicted normals' spatial spread over the truth's (1 = as "
+        "much as the truth). A model counts as better only on this split, against the baselines in the "
+        "same run.",
+        "",
+        "```",
+        REGENERATE,
+        "```",
+        "",
+        *_model_card(summary, run_dir),
+        "## On the fixed test split",
+        "",
+        head, rule, *rows,
+        "",
+        "The paper's row is for orientation only: it is measured on another test set (MatSynth renders) with "
+        "paper-size networks trained on a GPU.",
+        "",
+        "## Acceptance figures (issue 15)",
+        "",
+        *_acceptance(results),
+        "",
+        "## By material class (mean per-map RMSE / re-render RMSE)",
+        "",
+        chead, crule, *crows,
+        "",
+        "![mean per-map RMSE by class](models_classes.png)",
+        "",
+        "## Contact sheet",
+        "",
+        "Per test sample (rows): the truth's normal, diffuse, specular and roughness, then the same four "
+        f"maps of each predictor in the order {', '.join(results)} ({THUMB}² thumbnails; normals as "
+        "(n+1)/2, albedos sRGB-encoded, roughness linear).",
+        "",
+        "![truth and estimates per test sample](models_maps.png)",
+        "",
+    ]
+    return "\n".join(lines)

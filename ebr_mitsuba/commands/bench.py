@@ -1,6 +1,6 @@
 """Measure speed against error and write the tables and plots (docs/bench/ in a checkout).
 
-  ebr bench [renderer|generate|extract-sg|models|split|all] [--out DIR] [--quick] [--json]
+  ebr bench [renderer|generate|extract-sg|models|all] [--out DIR] [--quick] [--json]
 
 Each benchmark writes ``OUT/<name>.md`` (a Markdown table with the reference it was measured
 against, and the PNG plots it links) and returns its path:
@@ -10,12 +10,10 @@ against, and the PNG plots it links) and returns its path:
 * ``generate``: data-generation samples/s per core for the ``mitsuba`` and ``fast`` renderers, and
   the error of ``fast`` against ``mitsuba`` on the same samples;
 * ``extract-sg``: the SG-extraction ablation, the exemplar roughness study and the timing;
-* ``models``: the shipped model against its baselines and ablations on the held-out set, and its
-  training summary (writes ``models.md``; needs the data sets and runs named by
-  ``EBR_TRAIN_DATA``, ``EBR_TEST_DATA``, ``EBR_RUNS``);
-* ``split``: every model and baseline (the oracle constant, the training-set mean maps) on the
-  fixed test split of the real assets, EBREnv Table 1 protocol (writes ``test_split.md``; needs
-  ``EBR_SPLIT_DATA``, optionally ``EBR_TRAIN_DATA`` and ``EBR_CANDIDATES``).
+* ``models``: the shipped model (its training summary) and every model and baseline (the oracle
+  constant, the training-set mean maps, candidate checkpoints) on the fixed test split of the real
+  assets, EBREnv Table 1 protocol, per material class, with a contact sheet (writes ``models.md``;
+  needs ``EBR_SPLIT_DATA``; optionally ``EBR_SHIPPED_RUN``, ``EBR_TRAIN_DATA``, ``EBR_CANDIDATES``).
 
 Default ``--out``: inside a checkout of ebr-mitsuba (the current directory or one above it holds
 the project's ``pyproject.toml``) the checkout's ``docs/bench`` (``docs`` for ``models``), the pages
@@ -47,7 +45,7 @@ HELP = "measure speed against error; write the benchmark pages (docs/bench/*.md 
 # Every benchmark name the toolkit plans; `available()` is the subset this version has (a module in
 # ebr_mitsuba.bench). Only those are listed in --help: `estimate` arrives with full-resolution
 # estimation.
-BENCHMARKS = ("renderer", "generate", "extract-sg", "estimate", "models", "split")
+BENCHMARKS = ("renderer", "generate", "extract-sg", "estimate", "models")
 OUTSIDE_CHECKOUT = Path("ebr-bench")
 PROJECT = "ebr-mitsuba"
 
