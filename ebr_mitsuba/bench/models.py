@@ -1,6 +1,6 @@
-"""``ebr bench split``: every model and baseline on the fixed test split (``docs/conventions.md``,
-"Metrics"); writes ``test_split.md`` with ``test_split_maps.png`` (contact sheet) and
-``test_split_classes.png``.
+"""``ebr bench models``: the shipped model, its training summary, and every model and baseline on
+the fixed test split (``docs/conventions.md``, "Metrics"); writes ``models.md`` with
+``models_maps.png`` (contact sheet), ``models_classes.png`` and ``models_loss.png``.
 
 The protocol is EBREnv's Table 1, near field: test captures of the real material sets and HDR maps
 of ``scenes/test_split.toml`` (``configs/data_real_test.toml``: Mitsuba, 256 spp, 256²), per-map
@@ -243,7 +243,7 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
     results, records = {}, {}
     for name, predict in predictors:
         store: list = []
-        log(f"[bench split] {name}")
+        log(f"[bench models] {name}")
         res = evaluate(_recording(predict, store), data, limit=n, seed=0, progress=progress)
         res["classes"] = group_means(res["per_sample"], material_class)
         res["normal_structure"] = float(np.mean([s / max(t, 1e-6) for (s, _), t in zip(store, truth_spread)]))
