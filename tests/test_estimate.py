@@ -1,5 +1,6 @@
 """`ebr estimate`: input checks and every bad-input case of the issue, the pipeline's outputs and
-report, tiling, refinement and the demo/gallery plumbing.
+report, refinement and the demo/gallery plumbing (full resolution above the model grid:
+tests/test_fullres.py).
 
 The network is replaced by a fake inference module (the documented ``load_model``/``predict``
 contract) that returns plausible maps and a two-lobe environment, so these tests need no trained
@@ -213,7 +214,7 @@ def test_missing_file(tmp_path, capsys, fake_net):
         (["--exposure-ratio", "2", "--noflash", None], "needs --noflash"),
         (["--refine-lobes", "--refine-steps", "5", "--noflash", None], "needs --noflash"),
         (["--refine-lobes"], "needs --refine-steps"),
-        (["--no-tile", "--max-size", "512"], "conflicts"),
+        (["--refine-seconds", "5"], "needs --refine-steps"),
         (["--noflash", "{flash}"], "same file"),
     ],
 )
@@ -352,37 +353,6 @@ def test_fov_range():
 # -- tiling -----------------------------------------------------------------------------------------
 
 
-def test_tiles_cover_and_blend_exactly():
-    from ebr_mitsuba.estimate.tiling import ramp, tile_starts, tiled_maps
-
-    for n, tile, ov in ((1024, 256, 32), (300, 64, 16), (64, 64, 8)):
-        starts = tile_starts(n, tile, ov)
-        covered = np.zeros(n, bool)
-        for s in starts:
-            covered[s : s + tile] = True
-        assert covered.all() and starts[-1] == n - tile
-        assert all(b - a <= tile - ov for a, b in zip(starts, starts[1:]))
-    assert ramp(64, 16).min() > 0 and ramp(64, 16)[16:48].tolist() == [1.0] * 32
-    # Per-tile maps that are crops of one global field blend back to that field exactly.
-    n = 160
-    rng = np.random.default_rng(0)
-    field = rng.random((n, n, 3)).astype(np.float32)
-
-    def predict_tile(crops):
-        d = crops["flash"]
-        t = d.shape[0]
-        return SVBRDF(
-            normal=np.broadcast_to(np.float32([0, 0, 1]), (t, t, 3)).copy(),
-            diffuse=d,
-            specular=d * 0.5,
-            roughness=d[..., 0],
-        )
-
-    maps = tiled_maps(predict_tile, {"flash": field}, 64, 24)
-    np.testing.assert_allclose(maps.diffuse, field, atol=1e-6)
-    np.testing.assert_allclose(maps.roughness, field[..., 0], atol=1e-6)
-
-
 # -- refinement -------------------------------------------------------------------------------------
 
 
@@ -431,7 +401,7 @@ def _check_outputs(out: Path, summary: dict, flash_only: bool = False, far: bool
     assert 'src="data:image/png;base64,' in html and 'src="http' not in html and 'src="maps' not in html
     for f in summary["files"]:
         assert (out / f).exists(), f
-    assert set(summary["timings"]) >= {"inputs", "model", "predict", "rerender", "outputs", "report"}
+    assert set(summary["timings"]) >= {"inputs", "model", "maps", "rerender", "outputs", "report"}
 
 
 def test_estimate_near_with_refinement_json(tmp_path, capsys, fake_net):
@@ -513,37 +483,23 @@ def test_estimate_flash_only_png(tmp_path, capsys, fake_net):
     assert not fake_net[0]["noflash"]
 
 
-def test_estimate_tiled(tmp_path, capsys, fake_net):
+def test_estimate_max_size_at_the_grid(tmp_path, capsys, fake_net):
+    """An 80² capture with --max-size at the model grid: one call at the grid (lighting and maps),
+    the photos area-averaged down, with the warning that names both sizes."""
     paths = _write_capture(tmp_path, n=80)
     out = tmp_path / "est"
     code, stdout, err = _estimate(
-        [
-            "--flash",
-            paths["flash"],
-            "--noflash",
-            paths["noflash"],
-            "--out",
-            out,
-            "--tile-overlap",
-            "16",
-            "--json",
-        ],
+        ["--flash", paths["flash"], "--noflash", paths["noflash"], "--out", out, "--max-size", str(GRID),
+         "--json"],
         capsys,
     )
     assert code == 0, err
     summary = json.loads(stdout)
-    assert summary["tiled"] and summary["resolution"] == 80 and "tiles" in summary["timings"]
-    assert len(fake_net) == 1 + 4  # one global pass + 2x2 tiles
+    assert summary["resolution"] == GRID and summary["tiles"] == 1 and len(fake_net) == 1
+    assert f"the photos are 80x80 pixels: estimating at {GRID}x{GRID}" in err
     from ebr_mitsuba.imageio import read_exr
 
-    assert read_exr(out / "maps" / "diffuse.exr").shape == (80, 80, 3)
-    # --no-tile: one pass at the grid.
-    code, stdout, err = _estimate(
-        ["--flash", paths["flash"], "--noflash", paths["noflash"], "--out", out, "--no-tile", "--json"],
-        capsys,
-    )
-    assert code == 0, err
-    assert json.loads(stdout)["resolution"] == GRID
+    assert read_exr(out / "maps" / "diffuse.exr").shape == (GRID, GRID, 3)
 
 
 def test_real_model_end_to_end(tmp_path, capsys):
@@ -583,8 +539,8 @@ def test_real_model_end_to_end(tmp_path, capsys):
 
 def test_real_model_near_far_and_real_flash_only_photo(tmp_path, capsys, data_dir):
     """The shipped (near) model on a generated near-far capture (the far pair feeds the re-renders
-    and the refinement, with a warning) and on a real flash-only phone photo (tiled: 128² from the
-    64² grid)."""
+    and the refinement, with a warning) and on a real flash-only phone photo (256², estimated at
+    --max-size 128: full resolution above the 64² grid, downscaled with a warning)."""
     from ebr_mitsuba.capture import capture
     from ebr_mitsuba.estimate.resample import model_grid
     from ebr_mitsuba.train import inference
@@ -607,7 +563,8 @@ def test_real_model_near_far_and_real_flash_only_photo(tmp_path, capsys, data_di
     assert code == 0, err
     summary = json.loads(stdout)
     _check_outputs(out, summary, flash_only=True)
-    assert summary["tiled"] and summary["resolution"] == 128
+    assert summary["resolution"] == 128 and summary["tiles"] == 1
+    assert any("estimating at 128x128" in w for w in summary["warnings"])
 
 
 # -- demo -------------------------------------------------------------------------------------------
@@ -688,36 +645,7 @@ def test_gallery_real_photos(tmp_path, capsys, data_dir):
     assert len(json.loads(cap.out)["photos"]) == 13
 
 
-def test_merge_detail_keeps_global_low_frequencies_and_tile_detail(rng):
-    """merge_detail = up(global − down(tiled)) + tiled: a constant offset of the global maps moves
-    the result by that offset; the tiles' detail survives; normals stay unit and upward."""
-    from ebr_mitsuba.estimate.tiling import merge_detail, upsample_bilinear
-    from ebr_mitsuba.materials import resample_svbrdf
-
-    n, g = 32, 8
-    normal = np.dstack([rng.normal(0, 0.1, (n, n, 2)), np.ones((n, n, 1))]).astype(np.float32)
-    normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
-    tiled = SVBRDF(
-        normal=normal,
-        diffuse=rng.uniform(0.3, 0.6, (n, n, 3)).astype(np.float32),
-        specular=rng.uniform(0.02, 0.1, (n, n, 3)).astype(np.float32),
-        roughness=rng.uniform(0.3, 0.6, (n, n)).astype(np.float32),
-    )
-    down = resample_svbrdf(tiled, g)
-    glob = SVBRDF(down.normal, down.diffuse + 0.2, down.specular, down.roughness - 0.1)
-    out = merge_detail(glob, tiled)
-    np.testing.assert_allclose(out.diffuse, tiled.diffuse + 0.2, atol=1e-5)
-    np.testing.assert_allclose(out.roughness, tiled.roughness - 0.1, atol=1e-5)
-    np.testing.assert_allclose(out.specular, tiled.specular, atol=1e-5)
-    np.testing.assert_allclose(np.linalg.norm(out.normal, axis=-1), 1, atol=1e-5)
-    assert (out.normal[..., 2] > 0).all()
-    # clipping keeps maps valid; the bilinear up of a constant is that constant
-    hot = SVBRDF(down.normal, np.minimum(down.diffuse + 0.9, 1), down.specular, down.roughness)
-    assert merge_detail(hot, tiled).diffuse.max() <= 1
-    np.testing.assert_allclose(upsample_bilinear(np.full((4, 4, 3), 0.7), (16, 16)), 0.7)
-
-
-# -- issue 16: exposure hint, --no-tile refinement, alignment confidence ----------------------------
+# -- issue 16: exposure hint, refinement at the grid, alignment confidence ---------------------------
 
 
 def test_unequal_exposure_without_exif_suggests_exposure_ratio(tmp_path):
@@ -742,9 +670,9 @@ def test_unequal_exposure_without_exif_suggests_exposure_ratio(tmp_path):
     assert "--exposure-ratio" not in str(exc.value)
 
 
-def test_no_tile_refinement_above_the_grid(tmp_path, capsys, fake_net):
-    """--no-tile --refine-steps N on an input above the model grid: the saturation mask is
-    resampled as a 2-D mask (it became (64,) and every refinement failed)."""
+def test_grid_refinement_above_the_grid(tmp_path, capsys, fake_net):
+    """--max-size at the grid with --refine-steps N on an input above the model grid: the
+    saturation mask is resampled as a 2-D mask (it became (64,) and every refinement failed)."""
     from ebr_mitsuba.estimate.inputs import load_inputs
 
     paths = _write_capture(tmp_path, n=64)
@@ -752,7 +680,7 @@ def test_no_tile_refinement_above_the_grid(tmp_path, capsys, fake_net):
     assert inp.resampled((GRID, GRID)).saturated.shape == (GRID, GRID)
     out = tmp_path / "est"
     code, stdout, err = _estimate(
-        ["--flash", paths["flash"], "--noflash", paths["noflash"], "--out", out, "--no-tile",
+        ["--flash", paths["flash"], "--noflash", paths["noflash"], "--out", out, "--max-size", str(GRID),
          "--refine-steps", "2", "--flash-intensity", "10", "--json"], capsys)
     assert code == 0, err
     summary = json.loads(stdout)

@@ -17,15 +17,18 @@ Options (defaults in brackets):
   --refine-steps N       test-time refinement steps against the photos [0]
   --refine-lobes         refine the SG lobes too (needs --noflash)
   --refine-lr X          refinement learning rate [0.02]
+  --refine-seconds S     time budget of the refinement: it stops after S seconds with a note [none]
   --render-mode M        environment term of the re-renders and refinement: sg | quadrature [sg]
   --exposure-ratio R     no-flash exposure / flash exposure when the files carry no EXIF [EXIF or 1]
   --fov DEG              horizontal field of view of the photos [45]
   --flash-intensity I    flash intensity in W/sr at the flash shot's exposure [capture.json or fitted]
   --max-shift F          largest flash/no-flash shift accepted, as a fraction of the width [0.02]
   --saturation-level V   EXR value at which pixels count as clipped [none]
-  --no-tile              inputs above the model grid: downsample instead of tiled inference
-  --max-size N           largest working resolution of tiled inference [2048]
-  --tile-overlap N       overlap of neighbouring tiles in pixels [32]
+  --max-size N           largest working size: larger photos are downsampled to it, with a warning [2048]
+
+Sizes: the lighting is estimated once at the model's grid (64x64 for the shipped model); the maps
+at the photos' resolution up to --max-size. Photos smaller than 32 pixels on the shorter side are
+refused (exit 2). The refinement runs coarse to fine (from at most 256x256 up to the working size).
 
 --json prints the summary (estimate.json: timings per stage, re-render errors before/after
 refinement, warnings, files) on stdout; progress goes to stderr. Exit 2 on bad input.
@@ -39,7 +42,6 @@ from pathlib import Path
 from ..estimate.inputs import DEFAULT_FOV, DEFAULT_MAX_SHIFT
 from ..estimate.refine import RefineConfig
 from ..estimate.resample import DEFAULT_MAX_SIZE
-from ..estimate.tiling import DEFAULT_OVERLAP
 from ._common import emit_json, progress, say
 
 NAME = "estimate"
@@ -78,18 +80,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--saturation-level", type=float, metavar="V", help="EXR clipping level (default none)"
     )
-    parser.add_argument("--no-tile", action="store_true", help="downsample large inputs instead of tiling")
     parser.add_argument(
         "--max-size",
         type=int,
         default=DEFAULT_MAX_SIZE,
-        help=f"largest working resolution of tiled inference [{DEFAULT_MAX_SIZE}]",
-    )
-    parser.add_argument(
-        "--tile-overlap",
-        type=int,
-        default=DEFAULT_OVERLAP,
-        help=f"tile overlap in pixels [{DEFAULT_OVERLAP}]",
+        metavar="N",
+        help=f"largest working size; larger photos are downsampled to it (warning) [{DEFAULT_MAX_SIZE}]",
     )
     parser.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
 
@@ -107,13 +103,24 @@ def add_refine_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--refine-lobes", action="store_true", help="refine the SG lobes too")
     parser.add_argument("--refine-lr", type=float, default=d.lr, help=f"refinement learning rate [{d.lr}]")
     parser.add_argument(
+        "--refine-seconds",
+        type=float,
+        default=d.seconds,
+        metavar="S",
+        help="time budget of the refinement in seconds; it stops there with a note [none]",
+    )
+    parser.add_argument(
         "--render-mode", default=d.mode, metavar="M", help=f"environment term: sg or quadrature [{d.mode}]"
     )
 
 
 def refine_config(args) -> RefineConfig:
     return RefineConfig(
-        steps=args.refine_steps, lobes=args.refine_lobes, lr=args.refine_lr, mode=args.render_mode
+        steps=args.refine_steps,
+        lobes=args.refine_lobes,
+        lr=args.refine_lr,
+        mode=args.render_mode,
+        seconds=args.refine_seconds,
     )
 
 
@@ -127,8 +134,8 @@ def check_flags(args) -> None:
         raise InputError("--refine-lobes needs --refine-steps N > 0")
     if args.refine_lobes and args.noflash is None:
         raise InputError("--refine-lobes needs --noflash: a flash-only capture has no lighting to refine")
-    if args.no_tile and (args.max_size != DEFAULT_MAX_SIZE or args.tile_overlap != DEFAULT_OVERLAP):
-        raise InputError("--no-tile conflicts with --max-size/--tile-overlap; give one or the other")
+    if args.refine_seconds is not None and args.refine_steps == 0:
+        raise InputError("--refine-seconds needs --refine-steps N > 0")
     if args.flash_intensity is not None and not (
         args.flash_intensity > 0 and args.flash_intensity < float("inf")
     ):
@@ -162,9 +169,7 @@ def run(args) -> int:
         max_shift=args.max_shift,
         saturation_level=args.saturation_level,
         flash_intensity=args.flash_intensity,
-        tile=not args.no_tile,
         max_size=args.max_size,
-        tile_overlap=args.tile_overlap,
     )
     with output_lock(args.out, "ebr estimate"):  # one writer per --out: a second one is refused
         summary = run_estimate(cfg, log=say, bar=progress)

@@ -4,8 +4,11 @@
 module         contents
 =============  ===================================================================================
 ``inputs``     reading the shots, EXIF exposure matching, the input checks (:class:`Inputs`)
-``resample``   the working resolution (model grid or tiled) and resampling to it
-``tiling``     tiled inference with raised-cosine overlap blending
+``resample``   the working-size policy (minimum, model grid, ``--max-size``)
+``fullres``    the maps at full resolution from the capture's lighting (one pass or tiles, the
+               scale ensemble, true per-pixel geometry)
+``fastnet``    a channels-last inference forward of the NAFNets; multiply-add counting
+``tiling``     tile origins, raised-cosine blending weights, bilinear upsampling
 ``refine``     test-time refinement of maps (and lobes) with the differentiable renderer
 ``metrics``    per-map RMSE against ground truth
 ``outputs``    the files of an estimate directory (maps, env pictures, re-renders, residuals, ...)

@@ -26,7 +26,8 @@ Checks (an :class:`~ebr_mitsuba.errors.InputError` with one line, or a warning i
 ==============  ===============================================================================
 check           rule
 ==============  ===============================================================================
-size            all shots the same size (error); a non-square frame is centre-cropped (warning)
+size            all shots the same size (error); shorter side below ``MIN_INPUT_SIZE`` (32) pixels
+                (error: nothing to estimate); a non-square frame is centre-cropped (warning)
 values          NaN/Inf (error, from the readers); negative EXR values clipped (warning)
 flash           the flash shot brighter than the no-flash shot on average (error: swapped? without
                 EXIF or ``exposure_ratio`` the message suggests ``--exposure-ratio``)
@@ -59,6 +60,7 @@ import numpy as np
 from ..errors import InputError
 from ..geometry import NEAR_FOV
 from ..imageio import EXR_SUFFIXES, HDR_SUFFIXES, IMAGE_SUFFIXES, read_image, resize_area
+from .resample import MIN_INPUT_SIZE
 
 SHOT_NAMES = ("flash", "noflash", "far_flash", "far_noflash")
 DEFAULT_FOV = NEAR_FOV
@@ -498,12 +500,15 @@ def load_inputs(
     fov: float = DEFAULT_FOV,
     max_shift: float = DEFAULT_MAX_SHIFT,
     saturation_level: float | None = None,
+    progress=None,
 ) -> Inputs:
     """Read, exposure-match and check the shots of a capture (see the module docstring).
 
     Paths may be ``str`` or ``Path``; ``noflash=None`` is a flash-only capture. Raises
     :class:`InputError` (one line) for every refused input; warnings go into ``Inputs.warnings``.
+    ``progress(done, total, what)``: after each shot is read and after the checks.
     """
+    report = progress or (lambda done, total, what: None)
     fov = check_fov(fov)
     if not (math.isfinite(max_shift) and 0 <= max_shift <= 0.5):
         raise InputError(f"--max-shift {max_shift}: give a fraction of the width in [0, 0.5]")
@@ -519,13 +524,21 @@ def load_inputs(
     }
     warnings: list[str] = []
     images, levels = {}, {}
-    for k, p in raw_paths.items():
+    total = len(raw_paths) + 1
+    for i, (k, p) in enumerate(raw_paths.items()):
+        report(i, total, f"reading {k}")
         images[k], levels[k] = read_shot(p, k)
+    report(len(raw_paths), total, "checks")
     shapes = {k: v.shape[:2] for k, v in images.items()}
     if len(set(shapes.values())) > 1:
         desc = ", ".join(f"{raw_paths[k]} is {s[1]}x{s[0]}" for k, s in shapes.items())
         raise InputError(f"shots differ in size ({desc}); give shots of one size from one camera")
     source_size = shapes["flash"]
+    if min(source_size) < MIN_INPUT_SIZE:
+        raise InputError(
+            f"{raw_paths['flash']} is {source_size[1]}x{source_size[0]} pixels; ebr estimate needs at "
+            f"least {MIN_INPUT_SIZE} pixels on the shorter side (the sample should fill the frame)"
+        )
     if source_size[0] != source_size[1]:
         warnings.append(
             f"frame {source_size[1]}x{source_size[0]} is not square: centre-cropped to the sample square"
@@ -593,6 +606,7 @@ def load_inputs(
             f"the flash highlight is off centre (x {pos[0]:+.2f}, y {pos[1]:+.2f} half-widths); hold "
             f"the phone parallel to the sample"
         )
+    report(total, total, "done")
     return inputs
 
 

@@ -10,18 +10,23 @@ path                            content
 ``env_latlong.exr|.png``        the SGs as a z-up lat-long image (top row zenith, u = φ/2π)
 ``env_sphere.png``              the upper hemisphere seen from above (orthographic: +x right,
                                 +y up), the light as the sample sees it
-``inputs/<shot>.png``           the shots at the working resolution, exposure-matched
-``rerender/<shot>.exr|.png``    the estimate re-rendered for each shot (fast renderer)
-``residual/<shot>.exr|.png``    re-render − photo (EXR: signed RGB; PNG: luminance, blue −, red +,
-                                full scale ±``RESIDUAL_SCALE`` × the photo's RMS)
-``novel/<name>.exr|.png``       renders under novel lights (:data:`NOVEL_LIGHTS`)
+``inputs/<shot>.png``           the shots, exposure-matched (preview size)
+``rerender/<shot>.exr|.png``    the estimate re-rendered for each shot (fast renderer; EXR at the
+                                working size, PNG at the preview size)
+``residual/<shot>.exr|.png``    re-render − photo (EXR: signed RGB at the working size; PNG:
+                                luminance, blue −, red +, full scale ±``RESIDUAL_SCALE`` × the
+                                photo's RMS, preview size)
+``novel/<name>.exr|.png``       renders under novel lights (:data:`NOVEL_LIGHTS`), preview size
 ``exemplars/*.png``             the lighting network's exemplars and flash-only image, when given
 ``estimate.json``               the summary (also printed by ``--json``)
 ``report.html``                 :mod:`.report`
 ==============================  =================================================================
 
 PNG previews of radiance use one exposure per shot (photo and re-render alike, the photo's 99.5th
-luminance percentile mapped to 1) and the sRGB curve, so the pairs compare directly.
+luminance percentile mapped to 1) and the sRGB curve, so the pairs compare directly. Previews are
+at most :data:`PREVIEW_SIZE` pixels per side (area-averaged; the maps' own PNGs are at the
+working size): a 2048² estimate writes its pictures in seconds and ``report.html`` stays a few
+megabytes.
 """
 
 from __future__ import annotations
@@ -39,6 +44,7 @@ from ..svbrdf import SVBRDF
 from .inputs import luminance
 
 RESIDUAL_SCALE = 0.5
+PREVIEW_SIZE = 512
 # Novel lights: name → (point light position or None, intensity factor × the flash's, env rotation
 # about +z in degrees or None for no environment).
 NOVEL_LIGHTS = {
@@ -55,14 +61,27 @@ def exposure_of(image: np.ndarray) -> float:
     return 1.0 / p if p > 0 and math.isfinite(p) else 1.0
 
 
+def preview_size(image: np.ndarray) -> np.ndarray:
+    """``image`` area-averaged to at most :data:`PREVIEW_SIZE` pixels per side (aspect kept)."""
+    from ..imageio import resize_area
+
+    h, w = image.shape[:2]
+    f = PREVIEW_SIZE / max(h, w)
+    if f >= 1:
+        return image
+    return resize_area(image, (max(1, round(h * f)), max(1, round(w * f))))
+
+
 def preview(path: Path, image: np.ndarray, exposure: float) -> Path:
-    return write_png(path, np.clip(image * exposure, 0, 1))
+    return write_png(path, np.clip(preview_size(image) * exposure, 0, 1))
 
 
 def residual_png(path: Path, render: np.ndarray, photo: np.ndarray) -> Path:
-    """Luminance residual in a diverging colour map, ±RESIDUAL_SCALE × RMS(photo) full scale."""
+    """Luminance residual in a diverging colour map, ±RESIDUAL_SCALE × RMS(photo) full scale
+    (preview size)."""
     from matplotlib import colormaps
 
+    render, photo = preview_size(render), preview_size(photo)
     rms = float(np.sqrt(np.mean(luminance(photo).astype(np.float64) ** 2))) or 1.0
     r = luminance(render - photo) / (RESIDUAL_SCALE * rms)
     rgb = colormaps["RdBu_r"](np.clip(0.5 + 0.5 * r, 0, 1))[..., :3].astype(np.float32)
@@ -134,10 +153,13 @@ def write_novel(
     distance: float = NEAR_DISTANCE,
     mode: str = "sg",
 ) -> list[str]:
-    """Renders of ``maps`` under :data:`NOVEL_LIGHTS` into ``out/novel``; returns file names.
-    Environment-lit renders are skipped when there is no environment."""
+    """Renders of ``maps`` under :data:`NOVEL_LIGHTS` into ``out/novel`` (at the preview size);
+    returns file names. Environment-lit renders are skipped when there is no environment."""
+    from ..materials import resample_svbrdf
     from .refine import rerender
 
+    if max(maps.shape) > PREVIEW_SIZE:
+        maps = resample_svbrdf(maps, preview_size(maps.diffuse).shape[:2])
     files = []
     (out / "novel").mkdir(exist_ok=True)
     for name, (shot, rot) in novel_shots(flash_intensity, distance).items():
@@ -217,6 +239,7 @@ def write_exemplars(out: Path, prediction) -> list[str]:
 
 __all__ = [
     "NOVEL_LIGHTS",
+    "PREVIEW_SIZE",
     "RESIDUAL_SCALE",
     "env_pictures",
     "write_novel",

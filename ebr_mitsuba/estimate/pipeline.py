@@ -5,15 +5,21 @@ Stages (each timed; the ``--json`` summary lists them in ``timings``):
 ============  ===================================================================================
 stage         work
 ============  ===================================================================================
-``inputs``    read, exposure-match and check the shots (:func:`.inputs.load_inputs`)
+``inputs``    read, exposure-match and check the shots (:func:`.inputs.load_inputs`); the
+              working size (:func:`.resample.working_size`) and the shots resampled to it
 ``model``     load the network (:func:`ebr_mitsuba.train.inference.load_model`)
-``predict``   one pass at the model grid: lighting (SGs, exemplars) and maps
-``tiles``     inputs larger than the grid: tiled maps at the working resolution (:mod:`.tiling`)
+``lighting``  once per capture, at the model grid: lighting net, SG extraction, exemplar
+              selection (:func:`ebr_mitsuba.train.inference.predict_lighting`)
+``maps``      the cascade over the whole working image (:func:`.fullres.predict_maps`); at the
+              grid size, ``lighting`` and ``maps`` are one call (``predict``)
 ``rerender``  flash intensity, re-render errors of the network's estimate
 ``refine``    ``--refine-steps N`` > 0: test-time refinement (:mod:`.refine`)
 ``outputs``   maps, env.json and pictures, re-renders, residuals, novel lights (:mod:`.outputs`)
 ``report``    ``report.html`` (:mod:`.report`)
 ============  ===================================================================================
+
+Every stage that can take more than a second says so on stderr when it starts and shows a
+progress bar (``bar``); ``--json`` output goes to stdout alone.
 
 Nothing is written until the inputs and the model have passed their checks, and the output
 directory appears complete or not at all (:func:`ebr_mitsuba.fsutil.atomic_dir`): an earlier
@@ -45,11 +51,11 @@ from ..geometry import FAR_DISTANCE, FAR_FOV, Shot
 from ..sgenv import SGEnvironment
 from ..svbrdf import SVBRDF
 from . import outputs
+from .fullres import release_memory
 from .inputs import DEFAULT_FOV, DEFAULT_MAX_SHIFT, Inputs, load_inputs
 from .metrics import map_rmse
 from .refine import RefineConfig, ShotTarget, fit_flash_intensity, refine, rerender_errors
 from .resample import DEFAULT_MAX_SIZE, model_grid, working_size
-from .tiling import DEFAULT_OVERLAP, merge_detail, tiled_maps
 
 ESTIMATE_FORMAT = "ebr-estimate/1"
 INFERENCE_MODULE = "ebr_mitsuba.train.inference"
@@ -71,9 +77,7 @@ class EstimateConfig:
     max_shift: float = DEFAULT_MAX_SHIFT
     saturation_level: float | None = None
     flash_intensity: float | None = None
-    tile: bool = True
     max_size: int = DEFAULT_MAX_SIZE
-    tile_overlap: int = DEFAULT_OVERLAP
 
 
 def inference_module():
@@ -163,12 +167,12 @@ def _intensities(cfg: EstimateConfig, inputs: Inputs, maps: SVBRDF, shots: dict[
     return result
 
 
-def _check_prediction(pred, grid: int, flash_only: bool):
+def _check_prediction(pred, size: int, flash_only: bool):
     maps = getattr(pred, "maps", None)
     if not isinstance(maps, SVBRDF):
         raise RuntimeError(f"the network returned {type(maps).__name__} maps, not an SVBRDF")
-    if maps.shape != (grid, grid):
-        raise RuntimeError(f"the network returned {maps.shape} maps for a {grid}x{grid} grid")
+    if maps.shape != (size, size):
+        raise RuntimeError(f"the network returned {maps.shape} maps for a {size}x{size} image")
     env = getattr(pred, "env", None)
     if flash_only:
         return maps, None
@@ -184,11 +188,113 @@ def model_takes_far(bundle) -> bool:
     return getattr(config, "num_shots", 4) == 4
 
 
-def _predict(inf, bundle, inputs: Inputs):
-    im = inputs.images
-    if not model_takes_far(bundle):  # a near model: the far pair serves the re-renders and refinement
-        return inf.predict(bundle, im["flash"], im.get("noflash"))
-    return inf.predict(bundle, im["flash"], im.get("noflash"), im.get("far_flash"), im.get("far_noflash"))
+def _shot_args(bundle, images: dict[str, np.ndarray]) -> tuple:
+    """(flash, no-flash, far flash, far no-flash) for the model (a near model gets no far pair:
+    the far shots then serve the re-renders and the refinement only)."""
+    far = (images.get("far_flash"), images.get("far_noflash")) if model_takes_far(bundle) else (None, None)
+    return images["flash"], images.get("noflash"), *far
+
+
+PARALLEL_WRITERS = 2  # threads writing the output files of a large estimate
+PARALLEL_WRITE_PIXELS = 512 * 512  # from this working size on (below, writing takes < 1 s)
+
+
+def _warm_imports() -> None:
+    """Import colour-science (the sRGB encoding of every PNG written at the end, 2–5 s to import)
+    in a background thread while the networks run, instead of after them."""
+    import threading
+
+    from ..imageio import linear_to_srgb
+
+    threading.Thread(target=linear_to_srgb, args=(np.zeros(1, np.float32),), daemon=True,
+                     name="ebr-warm-imports").start()
+
+
+def _write_env(env: SGEnvironment, out: Path) -> list[str]:
+    env.save(out / "env.json")
+    return outputs.env_pictures(env, out)
+
+
+def _write_network_renders(out: Path, renders: dict, photos: dict) -> list[str]:
+    (out / "rerender_network").mkdir()
+    files = []
+    for k, img in renders.items():
+        outputs.preview(out / "rerender_network" / f"{k}.png", img, outputs.exposure_of(photos[k]))
+        outputs.residual_png(out / "rerender_network" / f"{k}_residual.png", img, photos[k])
+        files += [f"rerender_network/{k}.png", f"rerender_network/{k}_residual.png"]
+    return files
+
+
+def run_jobs(jobs: list, local: list, workers: int, progress=None) -> list:
+    """Run ``jobs`` (``(name, fn, args)`` returning lists) in ``workers`` threads while ``local``
+    ones run in this thread; the concatenated results in job order. ``workers`` = 1: everything
+    in order in this thread (the first failure stops the rest). A failure in a thread is raised
+    here once the running jobs have finished; jobs not yet started are cancelled."""
+    total = len(jobs) + len(local)
+    done = 0
+
+    def tick(name):
+        nonlocal done
+        done += 1
+        if progress is not None:
+            progress(done, total, name)
+
+    if progress is not None:
+        progress(0, total, (jobs + local)[0][0] if total else "")
+    if workers <= 1:
+        out = []
+        for name, fn, args in jobs + local:
+            out += fn(*args)
+            tick(name)
+        return out
+    from concurrent.futures import ThreadPoolExecutor
+
+    results: dict[int, list] = {}
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        futures = [pool.submit(fn, *args) for _, fn, args in jobs]
+        try:
+            for k, (name, fn, args) in enumerate(local):
+                results[len(jobs) + k] = fn(*args)
+                tick(name)
+            for k, f in enumerate(futures):
+                results[k] = f.result()
+                tick(jobs[k][0])
+        except BaseException:
+            for f in futures:
+                f.cancel()
+            raise
+    return [x for k in sorted(results) for x in results[k]]
+
+
+class _Steps:
+    """A progress bar over the steps of one stage (``done``/``total`` callbacks); a context
+    manager, so that the bar is cleared before an error message is printed."""
+
+    def __enter__(self) -> _Steps:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __init__(self, bar, desc: str, unit: str = "step", delay: float = 0.0):
+        self.bar_factory, self.desc, self.unit, self.pbar = bar, desc, unit, None
+        self.delay = delay
+
+    def __call__(self, done: int, total: int, what: str = "") -> None:
+        if self.bar_factory is None:
+            return
+        if self.pbar is None:
+            extra = {"delay": self.delay} if self.delay > 0 else {}
+            self.pbar = self.bar_factory(total=total, desc=self.desc, unit=self.unit, mininterval=0, **extra)
+        self.pbar.total = total
+        if what:
+            self.pbar.set_postfix_str(what, refresh=False)
+        self.pbar.update(done - self.pbar.n)  # shown at once (a delayed bar only after its delay)
+
+    def close(self) -> None:
+        if self.pbar is not None:
+            self.pbar.close()
+            self.pbar = None
 
 
 def run_estimate(
@@ -216,16 +322,20 @@ def run_estimate(
     out = Path(cfg.out)
     t0 = time.perf_counter()
     check_out_dir(out)
-    inputs = load_inputs(
-        cfg.flash,
-        cfg.noflash,
-        cfg.far_flash,
-        cfg.far_noflash,
-        exposure_ratio=cfg.exposure_ratio,
-        fov=cfg.fov,
-        max_shift=cfg.max_shift,
-        saturation_level=cfg.saturation_level,
-    )
+    # Reading and loading the model can still refuse the inputs (one line, nothing before it): their
+    # bars appear only when the stage takes more than a second.
+    with _Steps(bar, "inputs", unit="file", delay=0.5) as steps:
+        inputs = load_inputs(
+            cfg.flash,
+            cfg.noflash,
+            cfg.far_flash,
+            cfg.far_noflash,
+            exposure_ratio=cfg.exposure_ratio,
+            fov=cfg.fov,
+            max_shift=cfg.max_shift,
+            saturation_level=cfg.saturation_level,
+            progress=steps,
+        )
     if cfg.refine.lobes and inputs.flash_only:
         raise InputError("--refine-lobes needs --noflash: a flash-only capture has no lighting to refine")
     stage("inputs", t0)
@@ -233,9 +343,13 @@ def run_estimate(
         log(f"warning: {w}")
 
     t0 = time.perf_counter()
-    inf = inference_module()
-    if bundle is None:
-        bundle = inf.load_model(cfg.checkpoint)
+    with _Steps(bar if bundle is None else None, "model", delay=0.5) as steps:
+        steps(0, 2, "import")
+        inf = inference_module()
+        if bundle is None:
+            steps(1, 2, "load")
+            bundle = inf.load_model(cfg.checkpoint)
+        steps(2, 2, "done")
     grid = model_grid(bundle)
     if inputs.has_far and not model_takes_far(bundle):
         inputs.warnings.append(
@@ -243,60 +357,92 @@ def run_estimate(
             "refinement, not for the prediction"
         )
         log(f"warning: {inputs.warnings[-1]}")
-    work = working_size(inputs.size[0], grid, cfg.tile, cfg.max_size)
+    work = working_size(inputs.size[0], grid, cfg.max_size)
+    if inputs.size[0] > work:
+        inputs.warnings.append(
+            f"the photos are {inputs.size[0]}x{inputs.size[0]} pixels: estimating at {work}x{work} "
+            f"(the working size limit, --max-size {cfg.max_size}); give --max-size {inputs.size[0]} "
+            f"for the full size"
+        )
+        log(f"warning: {inputs.warnings[-1]}")
     stage("model", t0)
 
-    t0 = time.perf_counter()
-    log(f"predicting at {grid}x{grid}" + ("" if inputs.flash_only else " (lighting + maps)"))
-    pred = _predict(inf, bundle, inputs.resampled((grid, grid)))
-    maps, env = _check_prediction(pred, grid, inputs.flash_only)
-    stage("predict", t0)
+    _warm_imports()
+    t_resample = time.perf_counter()  # counted in the next stage, after its line on stderr
+    what = "" if inputs.flash_only else "lighting + "
+    tiles, tile, ensemble = 1, work, [work]
+    lighting_timings: dict = {}
+    if work == grid:  # the whole capture at the model grid: one call
+        log(f"estimating {what}maps at the model grid {grid}x{grid}")
+        t0 = t_resample
+        with _Steps(bar, "lighting + maps") as steps:
+            steps(0, 1, f"{grid}x{grid}")
+            work_inputs = inputs.resampled((work, work))
+            grid_inputs = work_inputs
+            pred = inf.predict(bundle, *_shot_args(bundle, grid_inputs.images))
+        maps, env = _check_prediction(pred, grid, inputs.flash_only)
+        stage("maps", t0)
+    else:
+        from .fullres import predict_maps
 
-    tiled = work > grid
-    work_inputs = inputs.resampled((work, work))
-    if tiled:
+        t0 = t_resample
+        log(f"estimating the lighting at the model grid {grid}x{grid}" if not inputs.flash_only
+            else f"selecting the point-light exemplars at the model grid {grid}x{grid}")
+        with _Steps(bar, "lighting") as steps:
+            steps(0, 3, "resampling the photos")
+            work_inputs = inputs.resampled((work, work))
+            grid_inputs = work_inputs.resampled((grid, grid))
+            lighting = inf.predict_lighting(bundle, *_shot_args(bundle, grid_inputs.images), progress=steps)
+        lighting_timings = dict(getattr(lighting, "timings", None) or {})
+        stage("lighting", t0)
         t0 = time.perf_counter()
-        log(f"tiled inference at {work}x{work} ({grid}-pixel tiles, overlap {cfg.tile_overlap})")
-
-        def predict_tile(crops):
-            tile_inputs = Inputs(
-                images=crops, paths=inputs.paths, saturated=np.zeros((grid, grid), bool), fov=inputs.fov
-            )
-            return _check_prediction(_predict(inf, bundle, tile_inputs), grid, True)[0]
-
-        maps = merge_detail(maps, tiled_maps(predict_tile, work_inputs.images, grid, cfg.tile_overlap))
-        stage("tiles", t0)
+        log(f"estimating the maps at {work}x{work}")
+        with _Steps(bar, "maps") as steps:
+            pred = predict_maps(inf, bundle, lighting, work_inputs.images, grid_inputs.images, progress=steps)
+        release_memory()
+        maps, env = _check_prediction(pred, work, inputs.flash_only)
+        tiles, tile, ensemble = len(pred.tiles), pred.tile, list(pred.members)
+        stage("maps", t0)
 
     t0 = time.perf_counter()
-    shots = _shots(work_inputs)
-    flash_info = _intensities(cfg, work_inputs, maps, shots)
-    mask = ~work_inputs.saturated
-    targets = [ShotTarget(shots[k], work_inputs.images[k], mask) for k in shots]
-    mode, spp = cfg.refine.mode, cfg.refine.spp
-    net_errors, net_renders = rerender_errors(maps, env, targets, mode, spp)
+    log(f"re-rendering the shots at {work}x{work}")
+    with _Steps(bar, "re-render") as steps:
+        steps(0, 2, "flash intensity")
+        shots = _shots(work_inputs)
+        flash_info = _intensities(cfg, work_inputs, maps, shots)
+        mask = ~work_inputs.saturated
+        targets = [ShotTarget(shots[k], work_inputs.images[k], mask) for k in shots]
+        mode, spp, table = cfg.refine.mode, cfg.refine.spp, cfg.refine.irradiance_table
+        steps(1, 2, "re-renders")
+        net_errors, net_renders = rerender_errors(maps, env, targets, mode, spp, table)
+    release_memory()
     stage("rerender", t0)
 
     refined = None
     final_maps, final_env, final_renders, final_errors = maps, env, net_renders, net_errors
     if cfg.refine.steps > 0:
         t0 = time.perf_counter()
-        log(f"refining: {cfg.refine.steps} steps" + (" (maps + lobes)" if cfg.refine.lobes else " (maps)"))
-        pbar = bar(total=cfg.refine.steps, desc="refine", unit="step") if bar else None
+        budget = "" if cfg.refine.seconds is None else f", at most {cfg.refine.seconds:g} s"
+        log(f"refining: {cfg.refine.steps} steps" + (" (maps + lobes" if cfg.refine.lobes else " (maps")
+            + f", coarse to fine{budget})")
+        with _Steps(bar, "refine") as steps:
+            steps(0, cfg.refine.steps, "")
 
-        def progress(step, total, loss):
-            if pbar is not None:
-                pbar.n = step
-                pbar.set_postfix_str(f"loss {loss:.4g}")
-                pbar.refresh()
+            def progress(step, total, loss, size):
+                steps(step, total, f"{size}x{size}, loss {loss:.4g}")
 
-        refined = refine(maps, env, targets, cfg.refine, progress, before=net_errors)
-        if pbar is not None:
-            pbar.close()
+            refined = refine(maps, env, targets, cfg.refine, progress, before=net_errors)
+        release_memory()
+        if refined.stopped:
+            log(f"note: refinement {refined.budget_note()}")
         if refined.loss_rose:
             log(f"warning: refinement {refined.loss_note()}")
         final_maps, final_env = refined.maps, refined.env
         final_errors, final_renders = refined.after, refined.renders
         stage("refine", t0)
+        if len(refined.levels) > 1:
+            for lv in refined.levels:
+                timings[f"refine at {lv['size']}²"] = lv["seconds"]
 
     summary = {
         "format": ESTIMATE_FORMAT,
@@ -306,7 +452,9 @@ def run_estimate(
         "inputs": inputs.to_json(),
         "model_grid": grid,
         "resolution": work,
-        "tiled": tiled,
+        "tiles": tiles,
+        "tile": tile,
+        "ensemble": ensemble,
         "render_mode": mode,
         "flash": flash_info,
         "lobes": 0 if final_env is None else final_env.num_lobes,
@@ -321,10 +469,15 @@ def run_estimate(
             "kept_step": refined.kept_step,
             "loss_rose": refined.loss_rose,
             "note": refined.loss_note(),
+            "levels": [{k: v for k, v in lv.items() if k != "seconds"} for lv in refined.levels],
+            "steps_run": refined.steps_run,
+            "seconds_budget": cfg.refine.seconds,
+            "stopped": refined.stopped,
+            "budget_note": refined.budget_note(),
         },
         "prediction_timings": {
             k: float(v)
-            for k, v in (getattr(pred, "timings", None) or {}).items()
+            for k, v in {**lighting_timings, **(getattr(pred, "timings", None) or {})}.items()
             if isinstance(v, (int, float))
         },
         "warnings": list(inputs.warnings),
@@ -340,27 +493,27 @@ def run_estimate(
     files: list[str] = []
     from .report import write_report
 
-    with atomic_dir(out) as tmp:
-        files += outputs.write_maps(final_maps, tmp / "maps", "ebr estimate")
+    log(f"writing {out}")
+    photos = {k: work_inputs.images[k] for k in shots}
+    with atomic_dir(out) as tmp, _Steps(bar, "outputs", unit="group") as steps:
+        # File groups (pure writes) go to a pool of 2 threads for large outputs; the renders of the
+        # novel lights and the exemplar pictures run here meanwhile.
+        jobs = [("maps", outputs.write_maps, (final_maps, tmp / "maps", "ebr estimate"))]
         if refined is not None:
-            files += outputs.write_maps(
-                maps, tmp / "maps_network", "ebr estimate (network, before refinement)"
-            )
+            jobs.append(("network maps", outputs.write_maps,
+                         (maps, tmp / "maps_network", "ebr estimate (network, before refinement)")))
+        jobs.append(("re-renders", outputs.write_shots, (tmp, photos, final_renders)))
+        if refined is not None:
+            jobs.append(("re-renders before refinement", _write_network_renders, (tmp, net_renders, photos)))
+        local = []
         if final_env is not None:
-            final_env.save(tmp / "env.json")
-            files += outputs.env_pictures(final_env, tmp)
-        photos = {k: work_inputs.images[k] for k in shots}
-        files += outputs.write_shots(tmp, photos, final_renders)
-        if refined is not None:
-            (tmp / "rerender_network").mkdir()
-            for k, img in net_renders.items():
-                outputs.preview(tmp / "rerender_network" / f"{k}.png", img, outputs.exposure_of(photos[k]))
-                outputs.residual_png(tmp / "rerender_network" / f"{k}_residual.png", img, photos[k])
-                files += [f"rerender_network/{k}.png", f"rerender_network/{k}_residual.png"]
-        files += outputs.write_novel(
-            final_maps, final_env, flash_info["flash"]["intensity"], tmp, near_distance(inputs.fov), mode
-        )
-        files += outputs.write_exemplars(tmp, pred)
+            local.append(("lighting", _write_env, (final_env, tmp)))
+        intensity = flash_info["flash"]["intensity"]
+        novel_args = (final_maps, final_env, intensity, tmp, near_distance(inputs.fov), mode)
+        local.append(("novel lights", outputs.write_novel, novel_args))
+        local.append(("exemplars", outputs.write_exemplars, (tmp, pred)))
+        workers = PARALLEL_WRITERS if work * work >= PARALLEL_WRITE_PIXELS else 1
+        files += run_jobs(jobs, local, workers, steps)
         stage("outputs", t0)
         t0 = time.perf_counter()
         summary["files"] = sorted(files) + ["estimate.json", "report.html"]

@@ -29,6 +29,23 @@ from. ``RefineResult.loss_rose`` / :meth:`RefineResult.loss_note` ("loss rose fr
 step K") tell when the last E read is above the kept one; the estimate's summary and report
 print that note.
 
+Coarse to fine. Above ``coarse_size`` pixels the run is split over a pyramid of levels (the maps'
+size halved until it is at most 2 × ``coarse_size``: 1024² → 128², 256², 512², 1024²); level l
+gets a share of the steps ∝ ``level_ratio``^(levels − 1 − l) (coarsest most: 200 steps at 1024²
+are 107, 53, 27, 13). Each level fits the photos area-averaged to its size, with the prior on the
+network's maps averaged likewise; it starts from the network's maps at its size plus the change
+the coarser level made, upsampled (bilinear, in the unconstrained parameters below), so the
+network's detail at the finer size is kept. A coarse step costs 4× less per halving, so most of the
+run is cheap and the low frequencies (levels, broad shading errors) are settled before the full
+size. The loss read at step 0 is that of the network's maps at the full size; the best iterate is
+chosen among it and the reads of the full-size level (losses of coarser levels, at their own
+sizes, are in the history but not compared with it).
+
+Time budget (``seconds``): the clock is checked after every step; once past the budget the run
+reads the loss, keeps its best iterate, skips the remaining levels (the change so far is carried to
+the full size) and says so (``RefineResult.stopped``, :meth:`RefineResult.budget_note`:
+"stopped by the time budget of S s after K of N steps (at WxW)").
+
 Parametrisation (unconstrained, so every step stays a valid SVBRDF): diffuse, specular and
 roughness through a sigmoid of a logit (initial values clamped to [1e-3, 1 − 1e-3]); the normal
 as n = normalize(p_x, p_y, 1) of a free 2-vector p (always n_z > 0). Lobes (``lobes=True``, only
@@ -51,6 +68,12 @@ option             type     default    meaning
 ``spp``            int      16         quadrature directions per pixel (``mode="quadrature"``)
 ``log_every``      int      10         loss read back (host sync) every so many steps; the best
                                        iterate is chosen among these reads
+``coarse_size``    int      128        coarse to fine: the coarsest level is at most 2× this; maps
+                                       of at most 2× this size refine in one level
+``level_ratio``    float    2.0        steps of a level ÷ steps of the next finer one
+``seconds``        float    None       time budget; None: no limit
+``irradiance_table`` int    64         ``sg`` mode: the diffuse environment term from a table of R²
+                                       normals (:mod:`ebr_mitsuba.render.env_sg`); 0: exact per pair
 =================  =======  =========  ===============================================================
 """
 
@@ -96,10 +119,22 @@ class RefineConfig:
     mode: str = "sg"
     spp: int = 16
     log_every: int = 10
+    coarse_size: int = 128
+    level_ratio: float = 2.0
+    seconds: float | None = None
+    irradiance_table: int = 64
 
     def __post_init__(self):
         if not isinstance(self.steps, int) or self.steps < 0:
             raise InputError(f"--refine-steps {self.steps}: give an integer >= 0")
+        if self.seconds is not None and not (math.isfinite(self.seconds) and self.seconds > 0):
+            raise InputError(f"--refine-seconds {self.seconds}: give a time budget > 0 seconds")
+        if not (isinstance(self.coarse_size, int) and self.coarse_size >= 4):
+            raise InputError(f"refinement coarse_size {self.coarse_size}: give an integer >= 4")
+        if not (math.isfinite(self.level_ratio) and self.level_ratio >= 1):
+            raise InputError(f"refinement level_ratio {self.level_ratio}: give a value >= 1")
+        if not isinstance(self.log_every, int) or self.log_every < 1:
+            raise InputError(f"refinement log_every {self.log_every}: give an integer >= 1")
         if not (math.isfinite(self.final_lr_fraction) and 0 < self.final_lr_fraction <= 1):
             raise InputError(f"refinement final_lr_fraction {self.final_lr_fraction}: give a value in (0, 1]")
         for name in ("lr", "normal_lr", "lobe_lr"):
@@ -126,12 +161,26 @@ class RefineResult:
     history: list[tuple[int, float]] = field(default_factory=list)
     renders: dict[str, np.ndarray] = field(default_factory=dict)  # the re-renders behind ``after``
     kept_step: int = 0  # the iterate returned: the one of lowest loss in ``history``
+    levels: list[dict] = field(default_factory=list)  # per level: size, steps planned and run, seconds
+    steps_run: int = 0  # steps taken (fewer than planned when the time budget stopped the run)
+    stopped: bool = False  # the time budget stopped the run
+    budget: float | None = None  # the time budget in seconds
 
     @property
     def loss_rose(self) -> bool:
         """Whether the last loss read is above the kept (lowest) one: the run diverged or
         oscillated after ``kept_step``."""
         return bool(self.history) and self.history[-1][0] != self.kept_step
+
+    def budget_note(self) -> str | None:
+        """``"stopped by the time budget of S s after K of N steps (at WxW)"`` when the budget
+        stopped the run, else None."""
+        if not self.stopped:
+            return None
+        planned = sum(lv["steps"] for lv in self.levels)
+        at = next((lv["size"] for lv in reversed(self.levels) if lv["run"] > 0), self.maps.shape[0])
+        return (f"stopped by the time budget of {self.budget:g} s after {self.steps_run} of {planned} "
+                f"steps (at {at}x{at})")
 
     def loss_note(self) -> str | None:
         """``"loss rose from X to Y; kept step K"`` when :attr:`loss_rose`, else None."""
@@ -147,6 +196,9 @@ class RefineResult:
             "history": [[s, round(v, 6)] for s, v in self.history],
             "kept_step": self.kept_step,
             "loss_rose": self.loss_rose,
+            "levels": self.levels,
+            "steps_run": self.steps_run,
+            "stopped": self.stopped,
         }
 
 
@@ -160,19 +212,39 @@ def loss_note(history, kept_step: int) -> str:
 # -- rendering and errors (numpy in, numpy out) ---------------------------------------------------------
 
 
-def render_options(mode: str = "sg", spp: int = 16):
+def render_options(mode: str = "sg", spp: int = 16, irradiance_table: int = 0):
+    """The renderer's options for the estimate: in ``sg`` mode the lobe loop and, with
+    ``irradiance_table`` > 0, the tabulated diffuse term (:mod:`ebr_mitsuba.render.env_sg`)."""
     from ..render import RenderOptions
 
-    return RenderOptions(mode=mode, spp=int(spp))
+    sg = mode == "sg"
+    return RenderOptions(mode=mode, spp=int(spp), irradiance_table=int(irradiance_table) if sg else 0,
+                         lobe_loop=sg)
 
 
 def rerender(
-    maps: SVBRDF, env: SGEnvironment | None, shot: Shot, mode: str = "sg", spp: int = 16
+    maps: SVBRDF, env: SGEnvironment | None, shot: Shot, mode: str = "sg", spp: int = 16,
+    irradiance_table: int = 0,
 ) -> np.ndarray:
     """The fast render (H, W, 3) of ``maps`` for ``shot`` (its flash, the environment if lit)."""
-    from ..render import render_numpy
+    return rerender_shots(maps, env, [shot], mode, spp, irradiance_table)[0]
 
-    return render_numpy(maps, env, shot, mode=mode, spp=spp)
+
+def rerender_shots(maps: SVBRDF, env: SGEnvironment | None, shots: list[Shot], mode: str = "sg",
+                   spp: int = 16, irradiance_table: int = 0) -> list[np.ndarray]:
+    """Fast renders (H, W, 3) of ``maps`` for several shots; shots from one camera share the
+    environment term (:func:`ebr_mitsuba.render.render_shots`)."""
+    import drjit as dr
+
+    from ..render import DrLobes, DrMaps, render_shots
+    from ..variant import ensure_variant
+
+    ensure_variant()
+    lobes = DrLobes.from_env(env if env is not None else SGEnvironment.empty())
+    with dr.suspend_grad():
+        opts = render_options(mode, spp, irradiance_table)
+        images = render_shots(DrMaps.from_numpy(maps), lobes, shots, opts)
+        return [np.asarray(im.numpy(), dtype=np.float32) for im in images]
 
 
 def image_errors(render: np.ndarray, target: np.ndarray, mask: np.ndarray) -> dict:
@@ -187,13 +259,15 @@ def image_errors(render: np.ndarray, target: np.ndarray, mask: np.ndarray) -> di
 
 
 def rerender_errors(
-    maps: SVBRDF, env: SGEnvironment | None, targets: list[ShotTarget], mode: str = "sg", spp: int = 16
+    maps: SVBRDF, env: SGEnvironment | None, targets: list[ShotTarget], mode: str = "sg", spp: int = 16,
+    irradiance_table: int = 0,
 ) -> tuple[dict, dict[str, np.ndarray]]:
     """Per shot name: {"rmse", "rel_rmse"} and the re-render (H, W, 3); plus ``"mean"`` of both."""
     errors, renders = {}, {}
-    for t in targets:
-        renders[t.shot.name] = rerender(maps, env, t.shot, mode, spp)
-        errors[t.shot.name] = image_errors(renders[t.shot.name], t.image, t.mask)
+    images = rerender_shots(maps, env, [t.shot for t in targets], mode, spp, irradiance_table)
+    for t, img in zip(targets, images):
+        renders[t.shot.name] = img
+        errors[t.shot.name] = image_errors(img, t.image, t.mask)
     errors["mean"] = {
         k: float(np.mean([errors[t.shot.name][k] for t in targets])) for k in ("rmse", "rel_rmse")
     }
@@ -222,30 +296,97 @@ def _logit(x: np.ndarray) -> np.ndarray:
     return np.log(x / (1 - x)).astype(np.float32)
 
 
+def _sigmoid(x: np.ndarray) -> np.ndarray:
+    return (1.0 / (1.0 + np.exp(-np.asarray(x, np.float64)))).astype(np.float32)
+
+
+def _slopes(normal: np.ndarray) -> np.ndarray:
+    """Normal → (p_x, p_y) with n = normalize(p_x, p_y, 1) (n_z floored at 0.05, as the optimiser)."""
+    nz = np.maximum(normal[..., 2:3], 0.05)
+    return (normal[..., :2] / nz).astype(np.float32)
+
+
+def to_params(maps: SVBRDF) -> dict[str, np.ndarray]:
+    """The unconstrained parameters of ``maps`` (module docstring): logits and normal slopes."""
+    return {"diffuse": _logit(maps.diffuse), "specular": _logit(maps.specular),
+            "roughness": _logit(maps.roughness), "normal_xy": _slopes(maps.normal)}
+
+
+def from_params(p: dict[str, np.ndarray], source: str = "refined") -> SVBRDF:
+    """Inverse of :func:`to_params`."""
+    xy = np.asarray(p["normal_xy"], np.float64)
+    n = np.concatenate([xy, np.ones(xy.shape[:2] + (1,))], axis=-1)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    return SVBRDF(normal=n.astype(np.float32), diffuse=_sigmoid(p["diffuse"]),
+                  specular=_sigmoid(p["specular"]), roughness=_sigmoid(p["roughness"]), source=source)
+
+
+def carry_change(net_coarse: SVBRDF, refined_coarse: SVBRDF, net_fine: SVBRDF) -> SVBRDF:
+    """``net_fine`` plus the change ``refined_coarse − net_coarse`` upsampled (bilinear, in the
+    unconstrained parameters): a coarse level's result carried to a finer level."""
+    from .tiling import upsample_bilinear
+
+    if refined_coarse is net_coarse:
+        return net_fine
+    a, b, f = to_params(net_coarse), to_params(refined_coarse), to_params(net_fine)
+    size = net_fine.shape
+    out = {k: f[k] + upsample_bilinear(b[k].astype(np.float64) - a[k], size).astype(np.float32) for k in f}
+    return from_params(out)
+
+
+def level_sizes(size: int, coarse_size: int) -> list[int]:
+    """Sizes of the coarse-to-fine levels, coarsest first: ``size`` halved (rounded up) while it
+    is above 2 × ``coarse_size``."""
+    sizes = [int(size)]
+    while sizes[-1] > 2 * coarse_size:
+        sizes.append((sizes[-1] + 1) // 2)
+    return sizes[::-1]
+
+
+def level_steps(steps: int, levels: int, ratio: float) -> list[int]:
+    """Steps per level, coarsest first, ∝ ``ratio``^(levels − 1 − l), summing to ``steps`` (every
+    level at least one step when ``steps`` ≥ levels)."""
+    if levels == 1:
+        return [steps]
+    w = np.array([ratio ** (levels - 1 - i) for i in range(levels)], np.float64)
+    raw = steps * w / w.sum()
+    out = np.floor(raw).astype(int)
+    for i in np.argsort(-(raw - out))[: steps - int(out.sum())]:
+        out[i] += 1
+    if steps >= levels:
+        for i in range(levels):
+            while out[i] == 0:
+                j = int(np.argmax(out))
+                out[j] -= 1
+                out[i] += 1
+    return [int(v) for v in out]
+
+
+def _resample_targets(targets: list[ShotTarget], size: int) -> list[ShotTarget]:
+    from ..imageio import resize_area
+
+    out = []
+    for t in targets:
+        if t.image.shape[0] == size:
+            out.append(t)
+            continue
+        mask = resize_area((~t.mask.astype(bool)).astype(np.float32), (size, size)) <= 0
+        out.append(ShotTarget(t.shot, resize_area(t.image, (size, size)), mask))
+    return out
+
+
 class _Params:
     """Unconstrained Dr.Jit parameters ↔ DrMaps / DrLobes."""
 
     def __init__(self, maps: SVBRDF, env: SGEnvironment | None, lobes: bool):
         import mitsuba as mi
 
-        nz = np.maximum(maps.normal[..., 2:3], 0.05)
         self.shape = maps.shape
-        self.values = {
-            "diffuse": mi.TensorXf(_logit(maps.diffuse)),
-            "specular": mi.TensorXf(_logit(maps.specular)),
-            "roughness": mi.TensorXf(_logit(maps.roughness)),
-            "normal_xy": mi.TensorXf(np.ascontiguousarray(maps.normal[..., :2] / nz, dtype=np.float32)),
-        }
+        self.values = {k: mi.TensorXf(np.ascontiguousarray(v)) for k, v in to_params(maps).items()}
         self.lobes = bool(lobes and env is not None and env.num_lobes > 0)
         self.env = env
         if self.lobes:
-            self.values.update(
-                {
-                    "axis": mi.TensorXf(np.ascontiguousarray(env.axis, dtype=np.float32)),
-                    "log_sharpness": mi.TensorXf(np.log(env.sharpness).astype(np.float32)),
-                    "log_amplitude": mi.TensorXf(np.log(env.amplitude + 1e-6).astype(np.float32)),
-                }
-            )
+            self.values.update(lobe_params(env))
 
     def maps(self, p):
         import drjit as dr
@@ -273,94 +414,88 @@ class _Params:
         return DrLobes(p["axis"], dr.exp(p["log_sharpness"]), dr.exp(p["log_amplitude"]))
 
 
-def _masked_mean(x, mask_t, count: float):
-    import drjit as dr
-
-    return dr.sum(dr.ravel(x * mask_t)) / count
-
-
-def refine(
-    maps: SVBRDF,
-    env: SGEnvironment | None,
-    targets: list[ShotTarget],
-    config: RefineConfig,
-    progress: Callable[[int, int, float], None] | None = None,
-    before: dict | None = None,
-) -> RefineResult:
-    """Optimise ``maps`` (and with ``config.lobes`` the lobes of ``env``) against ``targets``.
-
-    ``progress(step, steps, loss)`` is called every ``config.log_every`` steps. Returns the
-    refined maps/lobes and the re-render errors of the fast renderer before and after (``before``:
-    those of ``maps``/``env`` when the caller has them already, from :func:`rerender_errors`).
-    """
-    import drjit as dr
+def lobe_params(env: SGEnvironment) -> dict:
     import mitsuba as mi
 
-    from ..render import render
-
-    t0 = time.perf_counter()
-    if not targets:
-        raise InputError("refinement needs at least one shot")
-    for t in targets:
-        if t.image.shape[:2] != maps.shape or t.mask.shape != maps.shape:
-            raise InputError(
-                f"refinement: shot {t.shot.name} has image {tuple(t.image.shape[:2])}, mask "
-                f"{tuple(t.mask.shape)}; the maps are {maps.shape}: give the shot and its mask at "
-                f"the maps' size"
-            )
-    opts = render_options(config.mode, config.spp)
-    if before is None:
-        before, _ = rerender_errors(maps, env, targets, config.mode, config.spp)
-    if config.steps == 0:
-        return RefineResult(maps, env, before, before, time.perf_counter() - t0)
-
-    params = _Params(maps, env, config.lobes)
-    init = {
-        k: mi.TensorXf(v)
-        for k, v in (
-            ("diffuse", maps.diffuse),
-            ("specular", maps.specular),
-            ("roughness", maps.roughness),
-            ("normal", maps.encoded_normal()),
-        )
+    return {
+        "axis": mi.TensorXf(np.ascontiguousarray(env.axis, dtype=np.float32)),
+        "log_sharpness": mi.TensorXf(np.log(env.sharpness).astype(np.float32)),
+        "log_amplitude": mi.TensorXf(np.log(env.amplitude + 1e-6).astype(np.float32)),
     }
-    data = []
-    for t in targets:
-        y = np.ascontiguousarray(t.image, dtype=np.float32)
-        m = t.mask.astype(bool)
-        count = float(max(m.sum(), 1) * 3)
-        ms = float(np.mean(y[m].astype(np.float64) ** 2)) if m.any() else 1.0
-        eps = 0.01 * float(np.mean(y[m])) + 1e-6 if m.any() else 1e-3
-        mask3 = np.repeat(m[..., None], 3, axis=2).astype(np.float32)
-        # Per-shot constants are opaque: one kernel serves every capture of this size.
-        data.append(
-            (
-                t.shot,
-                mi.TensorXf(y),
-                mi.TensorXf(mask3),
-                dr.opaque(mi.Float, count),
-                dr.opaque(mi.Float, max(ms, 1e-12)),
-                dr.opaque(mi.Float, eps),
+
+
+def _masked_mean(x, mask_t, count: float):
+    """Mean over the unmasked values (``mask_t`` None: every pixel counts)."""
+    import drjit as dr
+
+    return dr.sum(dr.ravel(x if mask_t is None else x * mask_t)) / count
+
+
+@dataclass
+class _LevelResult:
+    maps: SVBRDF
+    env: SGEnvironment | None
+    history: list[tuple[int, float]]
+    kept_step: int  # local step of the best read (0: the start, or the given baseline)
+    best_loss: float
+    run: int
+    stopped: bool
+
+
+class _Level:
+    """One level of the refinement: the objective (module docstring) at one size."""
+
+    def __init__(self, prior: SVBRDF, env: SGEnvironment | None, targets: list[ShotTarget],
+                 config: RefineConfig):
+        import drjit as dr
+        import mitsuba as mi
+
+        self.config = config
+        self.env = env
+        self.shape = prior.shape
+        self.opts = render_options(config.mode, config.spp, config.irradiance_table)
+        self.shots = [t.shot for t in targets]
+        self.init = {
+            k: mi.TensorXf(v)
+            for k, v in (
+                ("diffuse", prior.diffuse),
+                ("specular", prior.specular),
+                ("roughness", prior.roughness),
+                ("normal", prior.encoded_normal()),
             )
-        )
+        }
+        self.data = []
+        for t in targets:
+            y = np.ascontiguousarray(t.image, dtype=np.float32)
+            m = t.mask.astype(bool)
+            count = float(max(m.sum(), 1) * 3)
+            ms = float(np.mean(y[m].astype(np.float64) ** 2)) if m.any() else 1.0
+            eps = 0.01 * float(np.mean(y[m])) + 1e-6 if m.any() else 1e-3
+            # No saturated pixel (the usual case): no mask tensor (3 floats per pixel saved).
+            mask3 = None if m.all() else mi.TensorXf(np.repeat(m[..., None], 3, axis=2).astype(np.float32))
+            # Per-shot constants are opaque: one kernel serves every capture of this size.
+            self.data.append(
+                (
+                    mi.TensorXf(y),
+                    mask3,
+                    dr.opaque(mi.Float, count),
+                    dr.opaque(mi.Float, max(ms, 1e-12)),
+                    dr.opaque(mi.Float, eps),
+                )
+            )
 
-    opt = dr.opt.Adam(lr=config.lr)
-    for k, v in params.values.items():
-        opt[k] = v
-    base_lr = {k: config.lr for k in params.values}
-    base_lr["normal_xy"] = config.normal_lr
-    if params.lobes:
-        for k in ("axis", "log_sharpness", "log_amplitude"):
-            base_lr[k] = config.lobe_lr
-    history = []
-    h, w = maps.shape
+    def objective(self, params: _Params, p):
+        import drjit as dr
+        import mitsuba as mi
 
-    def objective(p):
+        from ..render import render_shots
+
+        config = self.config
+        h, w = self.shape
         dm = params.maps(p)
         lobes = params.lobes_of(p)
         loss = mi.Float(0.0)
-        for shot, y, mask_t, count, ms, eps in data:
-            x = render(dm, lobes, shot, opts)
+        for x, (y, mask_t, count, ms, eps) in zip(render_shots(dm, lobes, self.shots, self.opts), self.data):
             diff = x - y
             loss += _masked_mean(diff * diff, mask_t, count) / ms
             if config.log_weight > 0:
@@ -374,7 +509,7 @@ def refine(
                 ("roughness", dm.roughness),
                 ("normal", n_enc),
             ):
-                d = cur - init[name]
+                d = cur - self.init[name]
                 loss += config.prior_weight * dr.mean(dr.ravel(d * d))
         if config.smooth_weight > 0 and h > 1 and w > 1:
             for cur in (dm.roughness, dm.specular, dm.normal):
@@ -384,38 +519,66 @@ def refine(
                 loss += config.smooth_weight * tv
         return loss
 
-    # The loss of the iterate after ``step`` updates is read at step 0, every ``log_every`` steps
-    # and after the last update; the best iterate read is kept (a diverging run returns the
-    # maps it started from rather than worse ones).
-    best_loss, best_step, best_params = math.inf, 0, None
-    for step in range(config.steps + 1):
-        p = {k: opt[k] for k in params.values}
-        loss = objective(p)
-        read = step == 0 or step % config.log_every == 0 or step == config.steps
-        if read:
-            value = float(loss[0])  # host sync: only every log_every steps
-            history.append((step, value))
-            if math.isfinite(value) and value < best_loss:
-                best_loss, best_step = value, step
-                best_params = {k: dr.detach(v) for k, v in p.items()}
-                dr.eval(best_params)
-            if progress is not None and step > 0:
-                progress(step, config.steps, value)
-        if step == config.steps:
-            break
-        # Adam's steps stay near lr even at the optimum (sign-like updates on noisy gradients):
-        # decaying the rates lets per-pixel maps settle instead of dithering around it.
-        frac = 1.0 - (1.0 - config.final_lr_fraction) * step / max(config.steps - 1, 1)
-        opt.set_learning_rate({k: v * frac for k, v in base_lr.items()})
-        dr.backward(loss)
-        opt.step()
+    def loss_of(self, maps: SVBRDF, env: SGEnvironment | None) -> float:
+        """The objective of ``maps`` (one forward, no gradients)."""
+        import drjit as dr
 
-    with dr.suspend_grad():
-        if best_params is None or best_step == 0:  # nothing better than the start: return it as given
-            out_maps, out_env, best_step = maps, env, 0
-        else:
+        params = _Params(maps, env, self.config.lobes)
+        with dr.suspend_grad():
+            return float(self.objective(params, params.values)[0])
+
+    def run(self, start: SVBRDF, env: SGEnvironment | None, steps: int, *, offset: int = 0,
+            baseline: float | None = None, deadline: float | None = None, progress=None,
+            total: int = 0, record_start: bool = True) -> _LevelResult:
+        """``steps`` Adam steps from ``start``; the best read iterate (or ``start``/its
+        ``baseline`` loss when no read is lower). Reads are recorded at ``offset`` + local step."""
+        import drjit as dr
+
+        config = self.config
+        params = _Params(start, env, config.lobes)
+        opt = dr.opt.Adam(lr=config.lr)
+        for k, v in params.values.items():
+            opt[k] = v
+        base_lr = {k: config.lr for k in params.values}
+        base_lr["normal_xy"] = config.normal_lr
+        if params.lobes:
+            for k in ("axis", "log_sharpness", "log_amplitude"):
+                base_lr[k] = config.lobe_lr
+        history: list[tuple[int, float]] = []
+        best_loss = math.inf if baseline is None else float(baseline)
+        best_step, best_params = 0, None
+        stopped = False
+        step = 0
+        for step in range(steps + 1):
+            p = {k: opt[k] for k in params.values}
+            loss = self.objective(params, p)
+            late = deadline is not None and time.perf_counter() > deadline and step < steps
+            read = step % config.log_every == 0 or step == steps or late
+            if read:
+                value = float(loss[0])  # host sync: only every log_every steps
+                if step > 0 or record_start:
+                    history.append((offset + step, value))
+                if math.isfinite(value) and (value < best_loss or (step == 0 and baseline is None)):
+                    best_loss, best_step = value, step
+                    best_params = None if step == 0 else {k: dr.detach(v) for k, v in p.items()}
+                    if best_params is not None:
+                        dr.eval(best_params)
+                if progress is not None and step > 0:
+                    progress(offset + step, total, value, self.shape[0])
+            if step == steps or late:
+                stopped = late
+                break
+            # Adam's steps stay near lr even at the optimum (sign-like updates on noisy gradients):
+            # decaying the rates lets per-pixel maps settle instead of dithering around it.
+            frac = 1.0 - (1.0 - config.final_lr_fraction) * step / max(steps - 1, 1)
+            opt.set_learning_rate({k: v * frac for k, v in base_lr.items()})
+            dr.backward(loss)
+            opt.step()
+        if best_params is None:  # nothing better than the start: return it as given
+            return _LevelResult(start, env, history, 0, best_loss, step, stopped)
+        with dr.suspend_grad():
             dm = params.maps(best_params)
-            out_maps = SVBRDF(
+            maps = SVBRDF(
                 normal=dm.normal.numpy(),
                 diffuse=dm.diffuse.numpy(),
                 specular=dm.specular.numpy(),
@@ -423,18 +586,114 @@ def refine(
                 source="refined",
             )
             out_env = params.lobes_of(best_params).to_env() if params.lobes else env
-    after, renders = rerender_errors(out_maps, out_env, targets, config.mode, config.spp)
+        return _LevelResult(maps, out_env, history, best_step, best_loss, step, stopped)
+
+
+def refine(
+    maps: SVBRDF,
+    env: SGEnvironment | None,
+    targets: list[ShotTarget],
+    config: RefineConfig,
+    progress: Callable[[int, int, float, int], None] | None = None,
+    before: dict | None = None,
+) -> RefineResult:
+    """Optimise ``maps`` (and with ``config.lobes`` the lobes of ``env``) against ``targets``.
+
+    ``progress(step, steps, loss, size)`` is called at every loss read (``size``: the level's
+    side). Returns the refined maps/lobes and the re-render errors of the fast renderer before and
+    after (``before``: those of ``maps``/``env`` when the caller has them already, from
+    :func:`rerender_errors`). Coarse to fine above ``config.coarse_size``, within
+    ``config.seconds`` when given (module docstring).
+    """
+    from ..materials import resample_svbrdf
+
+    t0 = time.perf_counter()
+    if not targets:
+        raise InputError("refinement needs at least one shot")
+    for t in targets:
+        if t.image.shape[:2] != maps.shape or t.mask.shape != maps.shape:
+            raise InputError(
+                f"refinement: shot {t.shot.name} has image {tuple(t.image.shape[:2])}, mask "
+                f"{tuple(t.mask.shape)}; the maps are {maps.shape}: give the shot and its mask at "
+                f"the maps' size"
+            )
+    table = config.irradiance_table
+    if before is None:
+        before, _ = rerender_errors(maps, env, targets, config.mode, config.spp, table)
+    if config.steps == 0:
+        return RefineResult(maps, env, before, before, time.perf_counter() - t0)
+    deadline = None if config.seconds is None else t0 + config.seconds
+    square = maps.shape[0] == maps.shape[1]
+    sizes = level_sizes(maps.shape[0], config.coarse_size) if square else [maps.shape[0]]
+    steps = level_steps(config.steps, len(sizes), config.level_ratio)
+    levels = [{"size": s, "steps": n, "run": 0, "seconds": 0.0} for s, n in zip(sizes, steps)]
+    full = _Level(maps, env, targets, config)
+    history: list[tuple[int, float]] = []
+    cur_maps, cur_env, net_prev = maps, env, None
+    offset, stopped, steps_run = 0, False, 0
+    result = None
+    for li, (size, n_steps) in enumerate(zip(sizes, steps)):
+        t_level = time.perf_counter()
+        last = li == len(sizes) - 1
+        net_here = maps if last else resample_svbrdf(maps, (size, size))
+        start = net_here if net_prev is None else carry_change(net_prev, cur_maps, net_here)
+        level = full if last else _Level(net_here, env, _resample_targets(targets, size), config)
+        baseline = None
+        if last and li > 0:  # the network's maps at full size are the baseline of the best iterate
+            baseline = full.loss_of(maps, env)
+            history.append((0, baseline))
+        result = level.run(start, cur_env, n_steps, offset=offset, baseline=baseline, deadline=deadline,
+                           progress=progress, total=config.steps, record_start=li == 0 or last)
+        history += result.history
+        levels[li]["run"] = result.run
+        levels[li]["seconds"] = round(time.perf_counter() - t_level, 3)
+        steps_run += result.run
+        offset += n_steps
+        if last and li > 0 and result.kept_step == 0 and result.best_loss >= baseline:
+            result = _LevelResult(maps, env, result.history, -1, baseline, result.run, result.stopped)
+        cur_maps, cur_env, net_prev = result.maps, result.env, net_here
+        if result.stopped:
+            stopped = True
+            if not last:  # carry what the coarse levels found to the full size, if it helps
+                carried = carry_change(net_here, cur_maps, maps)
+                value = full.loss_of(carried, cur_env)
+                base = full.loss_of(maps, env)
+                history += [(0, base), (offset - n_steps + result.run, value)]
+                if value < base:
+                    result = _LevelResult(carried, cur_env, [], offset - n_steps + result.run, value,
+                                          result.run, True)
+                else:
+                    result = _LevelResult(maps, env, [], -1, base, result.run, True)
+            break
+    # The kept step in the global numbering: the full-size read of the lowest loss (0: the network's).
+    if result.kept_step < 0:
+        kept, out_maps, out_env = 0, maps, env
+    elif len(sizes) == 1:
+        kept, out_maps, out_env = result.kept_step, result.maps, result.env
+    elif stopped and levels[-1]["run"] == 0:
+        kept, out_maps, out_env = result.kept_step, result.maps, result.env
+    else:
+        kept, out_maps, out_env = offset - steps[-1] + result.kept_step, result.maps, result.env
+    if kept == 0:
+        out_maps, out_env = maps, env
+    history = sorted(dict(history).items()) if len(sizes) > 1 else history
+    after, renders = rerender_errors(out_maps, out_env, targets, config.mode, config.spp, table)
     return RefineResult(out_maps, out_env, before, after, time.perf_counter() - t0, history, renders,
-                        kept_step=best_step)
+                        kept_step=kept, levels=levels, steps_run=steps_run, stopped=stopped,
+                        budget=config.seconds)
 
 
 __all__ = [
     "ShotTarget",
     "RefineConfig",
     "RefineResult",
+    "carry_change",
+    "level_sizes",
+    "level_steps",
     "refine",
     "rerender",
     "rerender_errors",
+    "rerender_shots",
     "image_errors",
     "fit_flash_intensity",
     "render_options",

@@ -29,11 +29,30 @@ th{background:#f3f3f3}td.l,th.l{text-align:left}.warn{color:#a40}.ok{color:#070}
 """
 
 
+THUMBNAIL_SIZE = 512  # pictures larger than this (per side) are embedded as thumbnails
+
+
+def _png_bytes(path: Path) -> bytes:
+    """The PNG's bytes, or a thumbnail of at most :data:`THUMBNAIL_SIZE` pixels per side (box
+    filter on the stored codes) for larger ones (the maps of a 2048² estimate)."""
+    from PIL import Image
+
+    with Image.open(path) as im:
+        if max(im.size) <= THUMBNAIL_SIZE:
+            return path.read_bytes()
+        im.thumbnail((THUMBNAIL_SIZE, THUMBNAIL_SIZE), Image.Resampling.BOX)
+        import io
+
+        buf = io.BytesIO()
+        im.save(buf, format="PNG", compress_level=1)  # fast: the page is read once
+        return buf.getvalue()
+
+
 def _img(out: Path, rel: str, caption: str, wide: bool = False) -> str:
     path = out / rel
     if not path.is_file():
         return ""
-    data = base64.b64encode(path.read_bytes()).decode("ascii")
+    data = base64.b64encode(_png_bytes(path)).decode("ascii")
     cls = ' class="wide"' if wide else ""
     return (
         f'<figure{cls}><img alt="{html.escape(caption)}" src="data:image/png;base64,{data}">'
@@ -155,7 +174,8 @@ def render_report(out: Path, summary: dict) -> str:
                 [
                     "working resolution",
                     f"{summary['resolution']}² (model grid {summary['model_grid']}², "
-                    f"{'tiled' if summary['tiled'] else 'one pass'})",
+                    + ("one pass" if summary.get("tiles", 1) == 1
+                       else f"{summary['tiles']} tiles of {summary['tile']}²") + ")",
                 ],
                 ["field of view", f"{inp['fov']:g}°"],
                 [
@@ -260,6 +280,8 @@ def render_report(out: Path, summary: dict) -> str:
         )
         if r.get("note"):  # issue 16 item 18: the loss rose, the best iterate was kept
             parts.append(f'<p class="warn">Refinement {html.escape(r["note"])}.</p>')
+        if r.get("budget_note"):  # issue 12: the time budget stopped the refinement
+            parts.append(f'<p class="warn">Refinement {html.escape(r["budget_note"])}.</p>')
 
     novel = sorted(p.name for p in (out / "novel").glob("*.png")) if (out / "novel").is_dir() else []
     if novel:

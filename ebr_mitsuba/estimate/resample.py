@@ -1,16 +1,22 @@
 """The working resolution of an estimate and the resampling to it.
 
-The network sees square images at its grid size G (``bundle.resolution``). An input of size N:
+The network's lighting stage sees square images at its grid size G (``bundle.resolution``, read
+from the model, 64 for the shipped one); the maps are estimated at the *working size* W. For a
+(square-cropped) input of N pixels per side:
 
-==============================  =============================================================
-case                            working resolution
-==============================  =============================================================
-N ≤ G                           G: the shots are area-resampled (up) to the grid
-N > G, tiling on (default)      min(N, ``max_size``): tiled inference (:mod:`.tiling`) there
-N > G, ``--no-tile``            G: the shots are area-averaged down to the grid
-==============================  =============================================================
+========================  =================================================================
+case                      working size
+========================  =================================================================
+N < ``MIN_INPUT_SIZE``    refused (exit 2, one line; :data:`MIN_INPUT_SIZE` = 32 pixels)
+N ≤ G                     G: the shots are area-resampled (up) to the grid
+G < N ≤ ``max_size``      N: the full resolution (:mod:`.fullres`)
+N > ``max_size``          ``max_size`` (default :data:`DEFAULT_MAX_SIZE` = 2048): the shots are
+                          area-averaged down, with a warning naming both sizes
+========================  =================================================================
 
-Maps come out at the working resolution; re-renders, residuals and the refinement run there.
+Maps come out at the working size; re-renders, residuals and the refinement run there. The
+default limit keeps a 4096² phone photo within the time and memory of a 2048² estimate (see
+docs/bench/estimate.md); ``--max-size`` raises or lowers it (at least G).
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ from ..svbrdf import SVBRDF
 
 DEFAULT_GRID = 256
 DEFAULT_MAX_SIZE = 2048
+MIN_INPUT_SIZE = 32
 
 
 def model_grid(bundle) -> int:
@@ -37,13 +44,11 @@ def model_grid(bundle) -> int:
     return int(res)
 
 
-def working_size(input_size: int, grid: int, tile: bool = True, max_size: int = DEFAULT_MAX_SIZE) -> int:
+def working_size(input_size: int, grid: int, max_size: int = DEFAULT_MAX_SIZE) -> int:
     """Working resolution for a square input of ``input_size`` pixels (see the module table)."""
     if max_size < grid:
         raise InputError(f"--max-size {max_size} is below the model grid {grid}; give at least {grid}")
-    if input_size <= grid or not tile:
-        return grid
-    return min(int(input_size), int(max_size))
+    return max(int(grid), min(int(input_size), int(max_size)))
 
 
 def resample_maps(maps: SVBRDF, size: int) -> SVBRDF:
@@ -51,4 +56,5 @@ def resample_maps(maps: SVBRDF, size: int) -> SVBRDF:
     return resample_svbrdf(maps, (size, size))
 
 
-__all__ = ["DEFAULT_GRID", "DEFAULT_MAX_SIZE", "model_grid", "working_size", "resample_maps"]
+__all__ = ["DEFAULT_GRID", "DEFAULT_MAX_SIZE", "MIN_INPUT_SIZE", "model_grid", "working_size",
+           "resample_maps"]

@@ -2,9 +2,10 @@
 
 It produces the images and conventions of the Mitsuba renders of the same scene (``ebr capture``):
 a pinhole camera at ``shot.camera``, radiance towards it from the surface point at each pixel
-centre (DESIGN §3 grid), an isotropic point light of intensity I [W/sr] with inverse-square
-falloff, and the SG environment ``L(ω) = Σ_k G_k(ω)`` over the upper hemisphere (the plane
-occludes the lower one; no other occlusion or interreflection exists in this scene).
+centre (the pixel grid of :mod:`ebr_mitsuba.geometry`), an isotropic point light of intensity I
+[W/sr] with inverse-square falloff, and the SG environment ``L(ω) = Σ_k G_k(ω)`` over the upper
+hemisphere (the plane occludes the lower one; no other occlusion or interreflection exists in this
+scene).
 
 ``image = flash + env_scale · env`` with
 
@@ -32,6 +33,7 @@ import numpy as np
 
 from ..brdf import brdf_eval_cos
 from ..errors import InputError
+from ..exemplar import EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR
 from ..geometry import DEFAULT_FLASH_INTENSITY, NEAR_FOV, Shot, near_shot
 from ..sgenv import SGEnvironment
 from ..svbrdf import SVBRDF
@@ -39,9 +41,6 @@ from .env_quadrature import quadrature_environment
 from .env_sg import sg_environment
 from .inputs import DrLobes, DrMaps, RenderOptions
 from .points import ShadingPoints, grid_positions, opaque_point, points_from_maps, view_vectors
-
-EXEMPLAR_DIFFUSE = 0.1
-EXEMPLAR_SPECULAR = 0.2
 
 
 def _require_variant() -> None:
@@ -85,7 +84,8 @@ def environment(points: ShadingPoints, lobes: DrLobes, options: RenderOptions,
     """The environment term (without ``env_scale``) in the selected mode."""
     if options.mode == "sg":
         return sg_environment(points, lobes, fresnel=options.fresnel,
-                              irradiance_nodes=options.irradiance_nodes)
+                              irradiance_nodes=options.irradiance_nodes,
+                              table_resolution=options.irradiance_table, lobe_loop=options.lobe_loop)
     return quadrature_environment(points, lobes, spp=options.spp, fresnel=options.fresnel,
                                   max_lanes=options.max_lanes, seed=options.seed, guide=guide)
 
@@ -106,7 +106,7 @@ def render(maps: DrMaps, lobes: DrLobes, shot: Shot, options: RenderOptions | No
                          "(DrMaps.from_numpy(svbrdf), DrLobes.from_env(env))")
     h, w = maps.shape
     camera = opaque_point(shot.camera)
-    points, positions = points_from_maps(maps, camera)
+    points, positions = points_from_maps(maps, camera, options.window)
     image = dr.zeros(mi.Color3f, h * w)
     if shot.flash is not None:
         image = image + point_light(points, positions, opaque_point(shot.flash),
@@ -116,10 +116,44 @@ def render(maps: DrMaps, lobes: DrLobes, shot: Shot, options: RenderOptions | No
         if guide is not None:
             if guide[0].shape != maps.shape or guide[1].num_lobes != lobes.num_lobes:
                 raise InputError("render: the guide must have the shapes of the maps and lobes")
-            guide_pts = (points_from_maps(guide[0], camera)[0], guide[1])
+            guide_pts = (points_from_maps(guide[0], camera, options.window)[0], guide[1])
         env = environment(points, lobes, options, guide_pts)
         image = image + env * dr.opaque(mi.Float, float(options.env_scale))
     return mi.TensorXf(dr.ravel(image), (h, w, 3))
+
+
+def render_shots(maps: DrMaps, lobes: DrLobes, shots: Sequence[Shot],
+                 options: RenderOptions | None = None) -> list[mi.TensorXf]:
+    """:func:`render` of one set of maps for several shots, sharing the work between shots from
+    the same camera: their shading points and environment term are computed once (a flash /
+    no-flash pair costs one environment term, not two). Same values as calling :func:`render`
+    per shot; differentiable likewise."""
+    _require_variant()
+    options = options or RenderOptions()
+    if not isinstance(maps, DrMaps) or not isinstance(lobes, DrLobes):
+        raise InputError("render_shots: give the maps as DrMaps and the lobes as DrLobes")
+    for shot in shots:
+        _check_shot(shot)
+    h, w = maps.shape
+    per_camera: dict[tuple, tuple] = {}
+    out = []
+    for shot in shots:
+        key = tuple(float(c) for c in shot.camera)
+        if key not in per_camera:
+            points, positions = points_from_maps(maps, opaque_point(shot.camera), options.window)
+            per_camera[key] = (points, positions, None)
+        points, positions, env = per_camera[key]
+        image = dr.zeros(mi.Color3f, h * w)
+        if shot.flash is not None:
+            image = image + point_light(points, positions, opaque_point(shot.flash),
+                                        dr.opaque(mi.Float, float(shot.flash_intensity)), options.fresnel)
+        if shot.env and lobes.num_lobes > 0:
+            if env is None:
+                env = environment(points, lobes, options) * dr.opaque(mi.Float, float(options.env_scale))
+                per_camera[key] = (points, positions, env)
+            image = image + env
+        out.append(mi.TensorXf(dr.ravel(image), (h, w, 3)))
+    return out
 
 
 def render_numpy(svbrdf: SVBRDF, env: SGEnvironment | None, shot: Shot, mode: str = "sg",
@@ -137,9 +171,10 @@ def render_numpy(svbrdf: SVBRDF, env: SGEnvironment | None, shot: Shot, mode: st
 def exemplar_images(env_lobes: DrLobes | SGEnvironment, roughness_list: Sequence[float], height: int,
                     width: int, shot: Shot | None = None, mode: str = "sg", spp: int = 64,
                     options: RenderOptions | None = None) -> list[mi.TensorXf]:
-    """Environment exemplars (DESIGN §1): renders of the uniform material (diffuse 0.1, specular
-    0.2 grey, roughness r, flat normal) under the lobes, flash off, one (H, W, 3) ``mi.TensorXf``
-    per roughness, differentiable w.r.t. the lobes.
+    """Environment exemplars (``docs/conventions.md``, "Exemplars"): renders of the exemplar
+    material (:mod:`ebr_mitsuba.exemplar`: diffuse 0.1, specular 0.2 grey, roughness r, flat
+    normal) under the lobes, flash off, one (H, W, 3) ``mi.TensorXf`` per roughness,
+    differentiable w.r.t. the lobes.
 
     All exemplars run as one kernel over (exemplar, lobe, pixel) pairs; the flat normal makes the
     diffuse part one irradiance per lobe. ``shot`` gives the camera (default: the near shot);

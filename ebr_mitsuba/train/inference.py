@@ -14,6 +14,12 @@ stage           work (``Prediction.timings`` key)
 ``cascade``     diffuse → specular → refinement nets (:func:`.renders.cascade_forward`)
 ==============  ==========================================================================
 
+The first three stages belong to the capture, not to a part of the image: :func:`predict_lighting`
+runs them once (a :class:`Lighting`), and :func:`cascade_pass` runs the cascade over any
+:class:`PassInputs` — the whole grid (:func:`predict` = both over the grid), or a full-resolution
+image or a tile of one, with each pixel's true geometry (``window``) and the capture's flash
+scale (``scales``); :mod:`ebr_mitsuba.estimate.fullres` builds those.
+
 **Flash-only mode** (``noflash`` None): no lighting stage; the flash photo is the flash-only
 image, the environment exemplars and the no-flash input are black, and ``env`` is None.
 
@@ -170,8 +176,10 @@ def estimate_lighting(
     far_noflash: np.ndarray | None = None,
     *,
     extract_config=None,
+    progress=None,
 ) -> tuple[np.ndarray, np.ndarray, SGEnvironment, dict]:
-    """Lighting net + SG extraction: ``(exemplars (N, H, W, 3), flash_only (H, W, 3), env, timings)``."""
+    """Lighting net + SG extraction: ``(exemplars (N, H, W, 3), flash_only (H, W, 3), env, timings)``;
+    ``progress(done, total, what)`` (of the 3 steps of :func:`predict_lighting`) before the extraction."""
     from ..extract import extract_sg
 
     timings = {}
@@ -181,12 +189,183 @@ def estimate_lighting(
     out = bundle.lighting(x)
     exemplars, flash_only = _hwc(out.exemplars[0]), _hwc(out.flash_only[0])
     timings["lighting"] = time.perf_counter() - t0
+    if progress is not None:
+        progress(1, 3, "SG extraction")
     t0 = time.perf_counter()
     result = extract_sg(
         exemplars, bundle.facts.env_roughness, config=extract_config or bundle.config.extract_config()
     )
     timings["extract"] = time.perf_counter() - t0
     return exemplars, flash_only, result.env, timings
+
+
+@dataclass
+class Lighting:
+    """The capture's lighting, estimated once at the model grid G (:func:`predict_lighting`):
+    what every part of a full-resolution estimate shares.
+
+    ``env``: the extracted SGs in photo units (None in flash-only mode); ``env_exemplars``: the
+    lighting net's N exemplars (G, G, 3) (empty in flash-only mode); ``flash_only`` (G, G, 3):
+    the lighting net's flash-only image (the flash photo in flash-only mode);
+    ``far_flash_only`` (G, G, 3) or None: the far pair's ``max(far flash − far no-flash, 0)`` (a
+    near-far model); ``selection``: ``{"env": Selection | None, "point": Selection}`` with the
+    selected exemplars at the grid in the model's training render mode; ``timings``: seconds per
+    stage (``lighting``, ``extract``, ``select``).
+    """
+
+    grid: int
+    env: SGEnvironment | None
+    env_exemplars: list[np.ndarray]
+    flash_only: np.ndarray
+    far_flash_only: np.ndarray | None
+    selection: dict
+    timings: dict = field(default_factory=dict)
+
+
+@dataclass
+class PassInputs:
+    """The cascade's inputs for one pass over an (H, W) image (numpy, linear float32):
+    ``noflash``, ``flash_only`` (H, W, 3); ``env_exemplars``, ``point_exemplars`` (K, H, W, 3);
+    ``photos``: (flash, no-flash[, far flash, far no-flash]) each (H, W, 3); ``far_flash_only``
+    (H, W, 3) or None."""
+
+    noflash: np.ndarray
+    flash_only: np.ndarray
+    env_exemplars: np.ndarray
+    point_exemplars: np.ndarray
+    photos: list[np.ndarray]
+    far_flash_only: np.ndarray | None = None
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return int(self.noflash.shape[0]), int(self.noflash.shape[1])
+
+    def crop(self, row: int, col: int, height: int, width: int) -> PassInputs:
+        """The block of rows ``row … row+height−1`` and columns ``col … col+width−1``."""
+        sl = (slice(row, row + height), slice(col, col + width))
+
+        def cut(a):
+            return None if a is None else np.ascontiguousarray(a[..., sl[0], sl[1], :])
+
+        return PassInputs(cut(self.noflash), cut(self.flash_only), cut(self.env_exemplars),
+                          cut(self.point_exemplars), [cut(p) for p in self.photos], cut(self.far_flash_only))
+
+
+def _check_shots(bundle: ModelBundle, flash, noflash, far_flash, far_noflash, size: int | None):
+    """Validated (flash, no-flash, [far pair]) at ``size`` (None: any square size)."""
+    if bundle.kind != "ebrenv":
+        raise InputError(
+            f"predict: a '{bundle.kind}' model; flash/no-flash prediction needs an 'ebrenv' model"
+        )
+    n = size if size is not None else int(np.asarray(flash).shape[0])
+    flash = _image("flash", flash, n)
+    near_far = bundle.lighting.config.num_shots == 4
+    has_far = far_flash is not None or far_noflash is not None
+    if has_far and not near_far:
+        raise InputError(
+            "predict: this model takes near captures only; leave out the far flash/no-flash shots"
+        )
+    if near_far and noflash is not None and (far_flash is None or far_noflash is None):
+        raise InputError("predict: this near-far model needs the far flash and far no-flash shots")
+    nf = None if noflash is None else _image("noflash", noflash, n)
+    far = [None, None]
+    if near_far and noflash is not None:
+        far = [_image(k, a, n) for k, a in (("far_flash", far_flash), ("far_noflash", far_noflash))]
+    return flash, nf, far, near_far
+
+
+@torch.no_grad()
+def predict_lighting(
+    bundle: ModelBundle,
+    flash,
+    noflash,
+    far_flash=None,
+    far_noflash=None,
+    *,
+    extract_config=None,
+    fixed_roughness: float | None = None,
+    progress=None,
+) -> Lighting:
+    """Lighting net, SG extraction and exemplar selection at the model grid (stages ``lighting``,
+    ``extract``, ``select`` of the module docstring): once per capture. Arguments as :func:`predict`;
+    ``progress(done, total, what)``: called as each stage starts and at the end."""
+    size = bundle.resolution
+    flash, nf, far, near_far = _check_shots(bundle, flash, noflash, far_flash, far_noflash, size)
+    report = progress or (lambda done, total, what: None)
+    timings: dict[str, float] = {}
+    env, exemplars, far_fo = None, [], None
+    if nf is None:
+        fo = flash
+    else:
+        report(0, 3, "lighting net")
+        ex, fo, env, t = estimate_lighting(bundle, flash, nf, *far, extract_config=extract_config,
+                                           progress=report)
+        exemplars = list(ex)
+        timings.update(t)
+        if near_far:
+            far_fo = np.maximum(far[0] - far[1], 0.0)
+    report(2, 3, "exemplar selection")
+    t0 = time.perf_counter()
+    env_sel, point_sel = select_pair(env, nf, fo, bundle.config.select_config(), fixed_roughness)
+    timings["select"] = time.perf_counter() - t0
+    report(3, 3, "done")
+    return Lighting(size, env, exemplars, fo, far_fo, {"env": env_sel, "point": point_sel}, timings)
+
+
+def grid_pass_inputs(bundle: ModelBundle, lighting: Lighting, flash, noflash, far_flash=None,
+                     far_noflash=None) -> PassInputs:
+    """The cascade's inputs at the grid: the photos, the lighting net's flash-only image and the
+    selected exemplars (black no-flash photo and environment exemplars in flash-only mode)."""
+    size = bundle.resolution
+    flash, nf, far, near_far = _check_shots(bundle, flash, noflash, far_flash, far_noflash, size)
+    env_sel, point_sel = lighting.selection["env"], lighting.selection["point"]
+    nf = np.zeros_like(flash) if nf is None else nf
+    env_images = env_sel.images if env_sel is not None else np.zeros((3, size, size, 3), np.float32)
+    far_fo = lighting.far_flash_only
+    if near_far and far[0] is None:  # flash-only mode of a near-far model: black far pair
+        far, far_fo = [np.zeros_like(flash)] * 2, np.zeros_like(flash)
+    photos = [flash, nf] + (list(far) if near_far else [])
+    return PassInputs(nf, lighting.flash_only, env_images, point_sel.images, photos, far_fo)
+
+
+@torch.no_grad()
+def cascade_pass(
+    bundle: ModelBundle,
+    inputs: PassInputs,
+    env: SGEnvironment | None,
+    *,
+    cascade=None,
+    window: tuple[int, int, int, int] | None = None,
+    scales: tuple | None = None,
+    render_options=None,
+):
+    """One pass of the cascade over ``inputs`` (:func:`.renders.cascade_forward`): returns the
+    :class:`~ebr_mitsuba.nets.ebrenv.CascadeOutput` (batch of one).
+
+    ``cascade``: the network to run (default ``bundle.cascade``; e.g. a fast view of it);
+    ``window``: the inputs are that block ``(row0, col0, full_h, full_w)`` of a larger grid, and
+    the cascade's renders use each pixel's true position; ``scales``: fixed flash scales ``(k_near,
+    k_far | None)`` instead of fitting them to the pass (one fit per capture, the same for every
+    tile); ``render_options``: :class:`ebr_mitsuba.render.RenderOptions` of the environment render.
+    """
+    from ..nets.drwrap import lobes_from_env
+    from .renders import cascade_forward
+
+    dev = bundle.device
+    return cascade_forward(
+        cascade if cascade is not None else bundle.cascade,
+        _chw(inputs.noflash, dev),
+        _chw(inputs.flash_only, dev),
+        _chw(inputs.env_exemplars, dev),
+        _chw(inputs.point_exemplars, dev),
+        torch.cat([_chw(p, dev) for p in inputs.photos], dim=1),
+        [lobes_from_env(env, dev)],
+        bundle.facts.flash_intensity,
+        None if inputs.far_flash_only is None else _chw(inputs.far_flash_only, dev),
+        window=window,
+        scales=scales,
+        options=render_options,
+    )
 
 
 @torch.no_grad()
@@ -205,70 +384,28 @@ def predict(
     ``flash``, ``noflash`` (None: flash-only mode), ``far_flash``, ``far_noflash``: (H, W, 3)
     linear float32 with H = W = ``bundle.resolution``. A near-far model needs the far pair; a near
     model refuses it. ``fixed_roughness``: exemplars at a fixed roughness instead of the adaptive
-    selection (ablation).
+    selection (ablation). Same as :func:`predict_lighting` followed by one :func:`cascade_pass`
+    over the grid.
     """
-    if bundle.kind != "ebrenv":
-        raise InputError(
-            f"predict: a '{bundle.kind}' model; flash/no-flash prediction needs an 'ebrenv' model"
-        )
-    size = bundle.resolution
-    flash = _image("flash", flash, size)
-    near_far = bundle.lighting.config.num_shots == 4
-    has_far = far_flash is not None or far_noflash is not None
-    if has_far and not near_far:
-        raise InputError(
-            "predict: this model takes near captures only; leave out the far flash/no-flash shots"
-        )
-    if near_far and noflash is not None and (far_flash is None or far_noflash is None):
-        raise InputError("predict: this near-far model needs the far flash and far no-flash shots")
-    sel_cfg = bundle.config.select_config()
-    timings: dict[str, float] = {}
-    env, exemplars, far_fo = None, [], None
-    if noflash is None:
-        nf = np.zeros_like(flash)
-        fo = flash
-    else:
-        nf = _image("noflash", noflash, size)
-        far = (
-            [_image(n, a, size) for n, a in (("far_flash", far_flash), ("far_noflash", far_noflash))]
-            if near_far
-            else [None, None]
-        )
-        ex, fo, env, t = estimate_lighting(bundle, flash, nf, *far, extract_config=extract_config)
-        exemplars = list(ex)
-        timings.update(t)
-        if near_far:
-            far_fo = np.maximum(far[0] - far[1], 0.0)
+    lighting = predict_lighting(bundle, flash, noflash, far_flash, far_noflash,
+                                extract_config=extract_config, fixed_roughness=fixed_roughness)
     t0 = time.perf_counter()
-    env_sel, point_sel = select_pair(env, None if noflash is None else nf, fo, sel_cfg, fixed_roughness)
-    timings["select"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    from ..nets.drwrap import lobes_from_env
-    from .renders import cascade_forward
-
-    dev = bundle.device
-    env_images = env_sel.images if env_sel is not None else np.zeros((3, size, size, 3), np.float32)
-    if near_far and noflash is None:  # flash-only mode of a near-far model: black far pair
-        far, far_fo = [np.zeros_like(flash)] * 2, np.zeros_like(flash)
-    photos = [flash, nf] + (list(far) if near_far else [])
-    out = cascade_forward(
-        bundle.cascade,
-        _chw(nf, dev),
-        _chw(fo, dev),
-        _chw(env_images, dev),
-        _chw(point_sel.images, dev),
-        torch.cat([_chw(p, dev) for p in photos], dim=1),
-        [lobes_from_env(env, dev)],
-        bundle.facts.flash_intensity,
-        None if far_fo is None else _chw(far_fo, dev),
-    )
+    inputs = grid_pass_inputs(bundle, lighting, flash, noflash, far_flash, far_noflash)
+    out = cascade_pass(bundle, inputs, lighting.env)
     maps = out.maps.to_svbrdf(0, source="ebr_mitsuba network")
+    timings = dict(lighting.timings)
     timings["cascade"] = time.perf_counter() - t0
-    return Prediction(maps, env, exemplars, fo, {"env": env_sel, "point": point_sel}, timings)
+    return Prediction(maps, lighting.env, lighting.env_exemplars, lighting.flash_only,
+                      dict(lighting.selection), timings)
 
 
 __all__ = [
+    "Lighting",
+    "PassInputs",
     "Prediction",
+    "cascade_pass",
+    "grid_pass_inputs",
+    "predict_lighting",
     "SHIPPED_MODEL",
     "estimate_lighting",
     "load_model",
