@@ -111,34 +111,29 @@ def _select(paths: list[Path], root: Path, split: str, test: tuple[str, ...]) ->
     return out
 
 
-def real_materials(split: str = "train", root: str | os.PathLike | None = None) -> list[str]:
-    """Absolute paths of the real material sets of ``split`` (sorted; ``root``: the data folder)."""
+def _real_assets(split: str, root, folders, keep, what: str, test: tuple[str, ...]) -> list[str]:
     _check_split(split)
     base = Path(root) if root is not None else data_dir()
     found = []
-    for sub in MATERIAL_DIRS:
+    for sub in folders:
         d = base / sub
         if d.is_dir():
-            found += sorted(p for p in d.iterdir() if p.is_dir())
+            found += sorted(p for p in d.iterdir() if keep(p))
     if not found:
-        raise InputError(f"{base}: no real material sets under {', '.join(MATERIAL_DIRS)}; set EBR_DATA_DIR "
-                         f"to the shared data folder")
-    return _select(found, base, split, load_split().materials)
+        raise InputError(f"{base}: no {what} under {', '.join(folders)}; set EBR_DATA_DIR to the shared "
+                         f"data folder")
+    return _select(found, base, split, test)
+
+
+def real_materials(split: str = "train", root: str | os.PathLike | None = None) -> list[str]:
+    """Absolute paths of the real material sets of ``split`` (sorted; ``root``: the data folder)."""
+    return _real_assets(split, root, MATERIAL_DIRS, Path.is_dir, "real material sets", load_split().materials)
 
 
 def real_envmaps(split: str = "train", root: str | os.PathLike | None = None) -> list[str]:
     """Absolute paths of the real HDR maps of ``split`` (sorted; ``root``: the data folder)."""
-    _check_split(split)
-    base = Path(root) if root is not None else data_dir()
-    found = []
-    for sub in ENVMAP_DIRS:
-        d = base / sub
-        if d.is_dir():
-            found += sorted(p for p in d.iterdir() if p.suffix.lower() in ENVMAP_SUFFIXES)
-    if not found:
-        raise InputError(f"{base}: no HDR maps under {', '.join(ENVMAP_DIRS)}; set EBR_DATA_DIR to the "
-                         f"shared data folder")
-    return _select(found, base, split, load_split().environments)
+    return _real_assets(split, root, ENVMAP_DIRS, lambda p: p.suffix.lower() in ENVMAP_SUFFIXES, "HDR maps",
+                        load_split().environments)
 
 
 @functools.lru_cache(maxsize=8)
