@@ -622,3 +622,17 @@ def test_bench_page_states_the_peak_and_the_acceptance():
         "outputs": True,
         "refine": True,
     }
+
+
+def test_refinement_levels_above_the_memory_budget_are_carried(monkeypatch):
+    """With the budget below a 64² level, a 64² refinement runs at 32² only and carries the change
+    to 64²: maps of the working size, no worse than the network's (the loss at 64² decides)."""
+    from ebr_mitsuba.estimate import refine as rf
+
+    truth, targets, start = _refine_case(64)
+    monkeypatch.setattr(rf, "REFINE_MEMORY", 40 * 40 * rf.REFINE_BYTES_PER_PIXEL)
+    res = rf.refine(start, ENV, targets, rf.RefineConfig(steps=30, coarse_size=16))
+    assert [lv["size"] for lv in res.levels] == [32] and res.maps.shape == (64, 64)
+    assert res.kept_step == 30 and not res.loss_rose and res.history[0][0] == 0
+    assert res.history[-1][1] < res.history[0][1]  # both at 64²: the carried change lowered the loss
+    assert res.after["mean"]["rmse"] < res.before["mean"]["rmse"]

@@ -1,6 +1,6 @@
 """Measure speed against error and write the tables and plots (docs/bench/ in a checkout).
 
-  ebr bench [renderer|generate|extract-sg|models|all] [--out DIR] [--quick] [--json]
+  ebr bench [renderer|generate|extract-sg|estimate|models|all] [--out DIR] [--quick] [--json]
 
 Each benchmark writes ``OUT/<name>.md`` (a Markdown table with the reference it was measured
 against, and the PNG plots it links) and returns its path:
@@ -10,6 +10,9 @@ against, and the PNG plots it links) and returns its path:
 * ``generate``: data-generation samples/s per core for the ``mitsuba`` and ``fast`` renderers, and
   the error of ``fast`` against ``mitsuba`` on the same samples;
 * ``extract-sg``: the SG-extraction ablation, the exemplar roughness study and the timing;
+* ``estimate``: ``ebr estimate`` at 256²–2048² with and without 200 refinement steps on a 1024²
+  Mitsuba capture: time per stage, peak memory, the maps' error against resolution, a 4096² photo,
+  the networks' FLOPs against the CPU's peak (writes ``estimate.md`` and three plots);
 * ``models``: the shipped model (its training summary) and every model and baseline (the oracle
   constant, the training-set mean maps, candidate checkpoints) on the fixed test split of the real
   assets, EBREnv Table 1 protocol, per material class, with a contact sheet (writes ``models.md``;
@@ -43,8 +46,7 @@ NAME = "bench"
 HELP = "measure speed against error; write the benchmark pages (docs/bench/*.md in a checkout)"
 
 # Every benchmark name the toolkit plans; `available()` is the subset this version has (a module in
-# ebr_mitsuba.bench). Only those are listed in --help: `estimate` arrives with full-resolution
-# estimation.
+# ebr_mitsuba.bench). Only those are listed in --help.
 BENCHMARKS = ("renderer", "generate", "extract-sg", "estimate", "models")
 OUTSIDE_CHECKOUT = Path("ebr-bench")
 PROJECT = "ebr-mitsuba"

@@ -41,6 +41,12 @@ size. The loss read at step 0 is that of the network's maps at the full size; th
 chosen among it and the reads of the full-size level (losses of coarser levels, at their own
 sizes, are in the history but not compared with it).
 
+Memory: a level takes about :data:`REFINE_BYTES_PER_PIXEL` bytes per pixel (parameters, Adam's
+moments, the renders kept for the reverse pass); levels above :data:`REFINE_MEMORY` (1.5 GB:
+above 1580²) are not run, and the change found at the finest level run is carried to the working
+size like a coarser level's (a 2048² estimate refines at 256², 512² and 1024²; its 2048² level
+took 2.5 GB and the estimate 3.8 GB).
+
 Time budget (``seconds``): the clock is checked after every step; once past the budget the run
 reads the loss, keeps its best iterate, skips the remaining levels (the change so far is carried to
 the full size) and says so (``RefineResult.stopped``, :meth:`RefineResult.budget_note`:
@@ -92,6 +98,8 @@ from ..sgenv import SGEnvironment
 from ..svbrdf import SVBRDF
 
 _EPS = 1e-3
+REFINE_BYTES_PER_PIXEL = 600  # measured: a 2048² level took 2.5 GB (parameters, Adam, AD graph)
+REFINE_MEMORY = 1.5e9  # bytes a refinement level may take; larger levels are not run (see refine)
 
 
 @dataclass(frozen=True)
@@ -623,60 +631,66 @@ def refine(
     if config.steps == 0:
         return RefineResult(maps, env, before, before, time.perf_counter() - t0)
     deadline = None if config.seconds is None else t0 + config.seconds
+    n = maps.shape[0]
     square = maps.shape[0] == maps.shape[1]
-    sizes = level_sizes(maps.shape[0], config.coarse_size) if square else [maps.shape[0]]
+    sizes = level_sizes(n, config.coarse_size) if square else [n]
+    # A level's optimisation takes about REFINE_BYTES_PER_PIXEL; levels above the memory budget are
+    # not run, and the change found at the finest level run is carried to the working size.
+    fits = [s for s in sizes if s * s * REFINE_BYTES_PER_PIXEL <= REFINE_MEMORY]
+    sizes = fits or sizes[:1]
     steps = level_steps(config.steps, len(sizes), config.level_ratio)
-    levels = [{"size": s, "steps": n, "run": 0, "seconds": 0.0} for s, n in zip(sizes, steps)]
-    full = _Level(maps, env, targets, config)
+    levels = [{"size": s, "steps": k, "run": 0, "seconds": 0.0} for s, k in zip(sizes, steps)]
+    full: list[_Level] = []  # the objective at the working size, built when first needed
+
+    def full_level() -> _Level:
+        if not full:
+            full.append(_Level(maps, env, targets, config))
+        return full[0]
+
     history: list[tuple[int, float]] = []
-    cur_maps, cur_env, net_prev = maps, env, None
+    cur_maps, cur_env, net_prev, net_here = maps, env, None, maps
     offset, stopped, steps_run = 0, False, 0
-    result = None
+    result, at_full, start_of_level = None, False, 0
     for li, (size, n_steps) in enumerate(zip(sizes, steps)):
         t_level = time.perf_counter()
-        last = li == len(sizes) - 1
-        net_here = maps if last else resample_svbrdf(maps, (size, size))
+        at_full = size == n
+        net_here = maps if at_full else resample_svbrdf(maps, (size, size))
         start = net_here if net_prev is None else carry_change(net_prev, cur_maps, net_here)
-        level = full if last else _Level(net_here, env, _resample_targets(targets, size), config)
+        level = full_level() if at_full else _Level(net_here, env, _resample_targets(targets, size), config)
         baseline = None
-        if last and li > 0:  # the network's maps at full size are the baseline of the best iterate
-            baseline = full.loss_of(maps, env)
+        if at_full and li > 0:  # the network's maps at full size are the baseline of the best iterate
+            baseline = level.loss_of(maps, env)
             history.append((0, baseline))
+        start_of_level = offset
         result = level.run(start, cur_env, n_steps, offset=offset, baseline=baseline, deadline=deadline,
-                           progress=progress, total=config.steps, record_start=li == 0 or last)
+                           progress=progress, total=config.steps, record_start=li == 0 or at_full)
         history += result.history
         levels[li]["run"] = result.run
         levels[li]["seconds"] = round(time.perf_counter() - t_level, 3)
         steps_run += result.run
         offset += n_steps
-        if last and li > 0 and result.kept_step == 0 and result.best_loss >= baseline:
+        if at_full and li > 0 and result.kept_step == 0 and result.best_loss >= baseline:
             result = _LevelResult(maps, env, result.history, -1, baseline, result.run, result.stopped)
         cur_maps, cur_env, net_prev = result.maps, result.env, net_here
         if result.stopped:
             stopped = True
-            if not last:  # carry what the coarse levels found to the full size, if it helps
-                carried = carry_change(net_here, cur_maps, maps)
-                value = full.loss_of(carried, cur_env)
-                base = full.loss_of(maps, env)
-                history += [(0, base), (offset - n_steps + result.run, value)]
-                if value < base:
-                    result = _LevelResult(carried, cur_env, [], offset - n_steps + result.run, value,
-                                          result.run, True)
-                else:
-                    result = _LevelResult(maps, env, [], -1, base, result.run, True)
             break
-    # The kept step in the global numbering: the full-size read of the lowest loss (0: the network's).
-    if result.kept_step < 0:
-        kept, out_maps, out_env = 0, maps, env
-    elif len(sizes) == 1:
-        kept, out_maps, out_env = result.kept_step, result.maps, result.env
-    elif stopped and levels[-1]["run"] == 0:
-        kept, out_maps, out_env = result.kept_step, result.maps, result.env
+    if not at_full:  # the last level run is below the working size: carry its change up, if it helps
+        carried = carry_change(net_here, cur_maps, maps)
+        value = full_level().loss_of(carried, cur_env)
+        base = full_level().loss_of(maps, env)
+        at = start_of_level + result.run
+        history += [(0, base), (at, value)]
+        result = (_LevelResult(carried, cur_env, [], at, value, result.run, stopped) if value < base
+                  else _LevelResult(maps, env, [], -1, base, result.run, stopped))
+        kept = result.kept_step
+    elif result.kept_step < 0:
+        kept = 0
     else:
-        kept, out_maps, out_env = offset - steps[-1] + result.kept_step, result.maps, result.env
-    if kept == 0:
-        out_maps, out_env = maps, env
-    history = sorted(dict(history).items()) if len(sizes) > 1 else history
+        kept = start_of_level + result.kept_step
+    out_maps, out_env = (maps, env) if kept <= 0 else (result.maps, result.env)
+    kept = max(kept, 0)
+    history = sorted(dict(history).items()) if len(sizes) > 1 or not at_full else history
     after, renders = rerender_errors(out_maps, out_env, targets, config.mode, config.spp, table)
     return RefineResult(out_maps, out_env, before, after, time.perf_counter() - t0, history, renders,
                         kept_step=kept, levels=levels, steps_run=steps_run, stopped=stopped,
