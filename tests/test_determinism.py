@@ -16,7 +16,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from ebr_mitsuba.cli import build_parser, main
@@ -91,25 +90,10 @@ def test_extract_sg_library_call_is_deterministic_under_set_deterministic(exempl
 def test_estimate_same_files(tmp_path, capsys, monkeypatch):
     """Two deterministic estimates (fake network, 5 refinement steps): identical bytes for every
     file but the timings (``estimate.json``'s timing fields, report.html)."""
-    from test_disk_full import _fake_inference
+    from fakes import SKY, SUN, fake_inference, write_pair
 
-    from ebr_mitsuba.geometry import near_shot
-    from ebr_mitsuba.imageio import write_exr
-    from ebr_mitsuba.render import render_numpy
-    from ebr_mitsuba.sgenv import SGEnvironment
-    from ebr_mitsuba.svbrdf import SVBRDF
-
-    grid = 32
-    rng = np.random.default_rng(1)
-    env = SGEnvironment(np.array([[0.3, 0.2, 0.93], [0, 0, 1]]), np.array([20.0, 1.0]),
-                        np.array([[4.0, 3.5, 3.0], [0.3, 0.3, 0.35]]))
-    mat = SVBRDF(normal=np.broadcast_to(np.float32([0, 0, 1]), (grid, grid, 3)).copy(),
-                 diffuse=(0.2 + 0.5 * rng.random((grid, grid, 3))).astype(np.float32),
-                 specular=np.full((grid, grid, 3), 0.05, np.float32),
-                 roughness=np.full((grid, grid), 0.4, np.float32))
-    for shot in (near_shot(True), near_shot(False)):
-        write_exr(tmp_path / f"{shot.name}.exr", render_numpy(mat, env, shot))
-    monkeypatch.setitem(sys.modules, "ebr_mitsuba.train.inference", _fake_inference(grid))
+    write_pair(tmp_path, seed=1, lobes=(SUN, SKY))
+    monkeypatch.setitem(sys.modules, "ebr_mitsuba.train.inference", fake_inference())
     outs = [tmp_path / f"est{k}" for k in range(2)]
     for out in outs:
         assert main(["--deterministic", "estimate", "--flash", str(tmp_path / "flash.exr"), "--noflash",

@@ -15,11 +15,8 @@ import os
 import pathlib
 import subprocess
 import sys
-import types
-from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from ebr_mitsuba.cli import disk_full_error, final_path, main
@@ -162,53 +159,11 @@ def test_json_writer_full(tmp_path, capsys, full_json, exemplar_dir):
     assert _leftovers(tmp_path) == []
 
 
-def _fake_inference(grid: int):
-    """The documented ``load_model``/``predict`` contract, without a network (as test_estimate)."""
-    from ebr_mitsuba.sgenv import SGEnvironment
-    from ebr_mitsuba.svbrdf import SVBRDF
-
-    @dataclass
-    class Prediction:
-        maps: SVBRDF
-        env: SGEnvironment | None
-        env_exemplars: list = field(default_factory=list)
-        flash_only: np.ndarray | None = None
-        selection: dict = field(default_factory=dict)
-        timings: dict = field(default_factory=dict)
-
-    class Bundle:
-        resolution = grid
-
-    def predict(bundle, flash, noflash, far_flash=None, far_noflash=None, *, extract_config=None):
-        n = flash.shape[0]
-        maps = SVBRDF.uniform(n, n, 0.3, 0.04, 0.5)
-        env = SGEnvironment(np.array([[0.0, 0.0, 1.0]]), np.array([2.0]), np.array([[0.5, 0.5, 0.5]]))
-        return Prediction(maps, env, [flash * 0.1], np.maximum(flash - noflash, 0))
-
-    mod = types.ModuleType("ebr_mitsuba.train.inference")
-    mod.load_model = lambda path: Bundle()
-    mod.predict = predict
-    return mod
-
-
 def test_estimate_output_directory_full(tmp_path, capsys, monkeypatch):
-    from ebr_mitsuba.geometry import near_shot
-    from ebr_mitsuba.imageio import write_exr
-    from ebr_mitsuba.render import render_numpy
-    from ebr_mitsuba.sgenv import SGEnvironment
-    from ebr_mitsuba.svbrdf import SVBRDF
+    from fakes import GRID, fake_inference, write_pair
 
-    grid = 32
-    inputs = tmp_path / "in"
-    env = SGEnvironment(np.array([[0.3, 0.2, 0.93]]), np.array([20.0]), np.array([[4.0, 3.5, 3.0]]))
-    rng = np.random.default_rng(0)
-    mat = SVBRDF(normal=np.broadcast_to(np.float32([0, 0, 1]), (grid, grid, 3)).copy(),
-                 diffuse=(0.2 + 0.5 * rng.random((grid, grid, 3))).astype(np.float32),
-                 specular=np.full((grid, grid, 3), 0.05, np.float32),
-                 roughness=np.full((grid, grid), 0.4, np.float32))
-    for shot in (near_shot(True), near_shot(False)):
-        write_exr(inputs / f"{shot.name}.exr", render_numpy(mat, env, shot))
-    monkeypatch.setitem(sys.modules, "ebr_mitsuba.train.inference", _fake_inference(grid))
+    inputs = write_pair(tmp_path / "in", seed=0)
+    monkeypatch.setitem(sys.modules, "ebr_mitsuba.train.inference", fake_inference(GRID))
     state = {"writes": 0}
     import OpenEXR
 

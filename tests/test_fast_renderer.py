@@ -282,16 +282,21 @@ def test_hard_cases_are_finite(mode, case):
     shots = [near_shot(True), view_shot((40.0, 3.0, 0.4), light=(-30.0, 0.0, 0.2), intensity=1e3),
              view_shot((0.0, 0.0, 1e-3), light=(0.0, -5.0, 1e-4))]
     for shot in shots:
-        maps, lobes = DrMaps.from_numpy(sv), DrLobes.from_env(env)
-        params = {**maps.params(), **lobes.params()}
-        for p in params.values():
-            dr.enable_grad(p)
-        image = render(maps, lobes, shot, RenderOptions(mode=mode, spp=8))
-        dr.backward(dr.sum(image.array))
-        assert np.all(np.isfinite(image.numpy())), f"{case} {shot.name}: image"
-        for name, p in params.items():
-            g = dr.grad(p)
-            assert np.all(np.isfinite(g.numpy())), f"{case} {shot.name}: d/d{name}"
+        _assert_finite_render(sv, env, shot, mode, f"{case} {shot.name}")
+
+
+def _assert_finite_render(sv, env, shot, mode, where: str) -> None:
+    """Render ``sv`` under ``env`` (spp 8), backpropagate the sum: value and every map and lobe
+    gradient finite."""
+    maps, lobes = DrMaps.from_numpy(sv), DrLobes.from_env(env)
+    params = {**maps.params(), **lobes.params()}
+    for p in params.values():
+        dr.enable_grad(p)
+    image = render(maps, lobes, shot, RenderOptions(mode=mode, spp=8))
+    dr.backward(dr.sum(image.array))
+    assert np.all(np.isfinite(image.numpy())), f"{where}: image"
+    for name, p in params.items():
+        assert np.all(np.isfinite(dr.grad(p).numpy())), f"{where}: d/d{name}"
 
 
 #: Amplitudes from the smallest normal float32 to 1e-19: there the quadrature's lobe-selection
@@ -319,16 +324,8 @@ def test_tiny_amplitudes_are_finite(mode):
                               [[amplitude] * 3, [amplitude, 0.0, 2 * amplitude]])]
         for env in envs:
             for shot in shots:
-                maps, lobes = DrMaps.from_numpy(sv), DrLobes.from_env(env)
-                params = {**maps.params(), **lobes.params()}
-                for p in params.values():
-                    dr.enable_grad(p)
-                image = render(maps, lobes, shot, RenderOptions(mode=mode, spp=8))
-                dr.backward(dr.sum(image.array))
                 where = f"μ={amplitude} K={env.num_lobes} camera {shot.camera}"
-                assert np.all(np.isfinite(image.numpy())), f"{where}: image"
-                for name, p in params.items():
-                    assert np.all(np.isfinite(dr.grad(p).numpy())), f"{where}: d/d{name}"
+                _assert_finite_render(sv, env, shot, mode, where)
 
 
 @pytest.mark.parametrize("mode", MODES)

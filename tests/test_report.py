@@ -22,26 +22,11 @@ from ebr_mitsuba.imageio import clip_hue, read_ldr, write_png
 @pytest.fixture(scope="module")
 def estimate_dir(tmp_path_factory):
     """One estimate (fake network, 20 refinement steps: two loss points) into ``.../my_estimate``."""
-    from test_disk_full import _fake_inference
+    from fakes import fake_inference, write_pair
 
-    from ebr_mitsuba.geometry import near_shot
-    from ebr_mitsuba.imageio import write_exr
-    from ebr_mitsuba.render import render_numpy
-    from ebr_mitsuba.sgenv import SGEnvironment
-    from ebr_mitsuba.svbrdf import SVBRDF
-
-    tmp = tmp_path_factory.mktemp("report")
-    grid = 32
-    rng = np.random.default_rng(2)
-    env = SGEnvironment(np.array([[0.3, 0.2, 0.93]]), np.array([20.0]), np.array([[4.0, 3.5, 3.0]]))
-    mat = SVBRDF(normal=np.broadcast_to(np.float32([0, 0, 1]), (grid, grid, 3)).copy(),
-                 diffuse=(0.2 + 0.5 * rng.random((grid, grid, 3))).astype(np.float32),
-                 specular=np.full((grid, grid, 3), 0.05, np.float32),
-                 roughness=np.full((grid, grid), 0.4, np.float32))
-    for shot in (near_shot(True), near_shot(False)):
-        write_exr(tmp / f"{shot.name}.exr", render_numpy(mat, env, shot))
+    tmp = write_pair(tmp_path_factory.mktemp("report"), seed=2)
     saved = sys.modules.get("ebr_mitsuba.train.inference")
-    sys.modules["ebr_mitsuba.train.inference"] = _fake_inference(grid)
+    sys.modules["ebr_mitsuba.train.inference"] = fake_inference()
     try:
         out = tmp / "my_estimate"
         assert main(["estimate", "--flash", str(tmp / "flash.exr"), "--noflash", str(tmp / "noflash.exr"),

@@ -34,24 +34,6 @@ NEAR_FAR_SMOKE = "train_tiny_near_far.toml"  # trained by tests/test_train_near_
 pytestmark = pytest.mark.usefixtures("one_torch_thread")  # conftest: torch on one thread
 
 
-def _generate(name: str, out: Path) -> Path:
-    from ebr_mitsuba.data.config import load_config as load_data_config
-    from ebr_mitsuba.data.generate import generate
-
-    generate(load_data_config(CONFIGS / name), out, progress=False)
-    return out
-
-
-@pytest.fixture(scope="module")
-def tiny(tmp_path_factory) -> Path:
-    return _generate("data_tiny.toml", tmp_path_factory.mktemp("tiny") / "data")
-
-
-@pytest.fixture(scope="module")
-def tiny5(tmp_path_factory) -> Path:
-    return _generate("data_tiny_five_light.toml", tmp_path_factory.mktemp("tiny5") / "data")
-
-
 def _smoke_doc(name: str, data: Path) -> dict:
     """A config of configs/ cut down to two steps per phase on the tiny data."""
     doc = tomllib.loads((CONFIGS / name).read_text())
@@ -172,12 +154,12 @@ def test_checkpoint_round_trip_and_errors(tiny_model, tmp_path):
     [n for n in TRAIN_CONFIGS if n not in SLOW_CONFIGS | {FIXTURE_CONFIG, NEAR_FAR_SMOKE}]
     + [pytest.param(n, marks=pytest.mark.slow) for n in sorted(SLOW_CONFIGS)],
 )
-def test_every_config_trains_two_steps(name, tiny, tiny5, tmp_path_factory, tmp_path):
+def test_every_config_trains_two_steps(name, tiny, tiny5, tiny_nf, tmp_path):
     raw = tomllib.loads((CONFIGS / name).read_text())
     if raw.get("kind") == "dualloss":
         data = tiny5
     elif raw.get("model", {}).get("capture") == "near-far":
-        data = _generate("data_tiny_near_far.toml", tmp_path_factory.mktemp("tiny_nf") / "data")
+        data = tiny_nf
     else:
         data = tiny
     doc = _smoke_doc(name, data)
