@@ -22,6 +22,8 @@ count and any sequence of interrupted and resumed runs. Use ``workers`` = number
 
 from __future__ import annotations
 
+import dataclasses
+
 import json
 import os
 import time
@@ -119,10 +121,29 @@ def sample_meta(plan: Plan, draw: SampleDraw) -> dict:
     }
 
 
+METER_PERCENTILE = 99.0
+
+
+def metered(config: GenerateConfig, draw, shots: dict[str, np.ndarray]):
+    """``draw`` with the auto exposure of ``[camera].meter`` (the drawn jitter kept): the base
+    exposure puts the 99th-percentile luminance of the brightest clean shot at ``meter``."""
+    meter = config.camera.meter
+    if meter <= 0:
+        return draw
+    from ..colour import LUMINANCE
+
+    level = max(float(np.percentile(np.asarray(v, np.float64) @ LUMINANCE, METER_PERCENTILE))
+                for v in shots.values())
+    jitter = draw.camera.exposure / config.camera.exposure
+    exposure = float(meter / max(level, 1e-6) * jitter)
+    return dataclasses.replace(draw, camera=dataclasses.replace(draw.camera, exposure=exposure))
+
+
 def make_sample(plan: Plan, index: int, root: Path) -> Path:
     """Draw, render, camera-simulate and write sample ``index`` under ``root``; returns its directory."""
     draw = draw_sample(plan, index)
     clean = render_clean(plan.config, draw)
+    draw = metered(plan.config, draw, clean.shots)
     cam = draw.camera
     rng = np.random.default_rng(cam.noise_seed)
     photos = {name: photo_linear(image, cam, rng) for name, image in clean.shots.items()}

@@ -136,6 +136,11 @@ class Inputs:
         mask = resize_area(self.saturated.astype(np.float32)[..., None], size)[..., 0] > 0
         return replace(self, images=images, saturated=mask)
 
+    def scaled(self, factor: float) -> Inputs:
+        """The shots × ``factor`` (to the reference exposure: ``docs/conventions.md``, "Exposure")."""
+        f = np.float32(factor)
+        return replace(self, images={k: (v * f).astype(np.float32) for k, v in self.images.items()})
+
     def to_json(self) -> dict:
         return {
             "paths": self.paths,

@@ -30,6 +30,15 @@ given; else the shot records of a ``capture.json`` beside the flash shot (``ebr 
 output); else the least-squares fit of the network maps' flash-only render to the photos'
 flash-only image (reported with ``"source": "fitted"``). The far flash is fitted or scaled
 likewise (same irradiance at the sample as the near flash when given).
+
+Exposure (``docs/conventions.md``, "Exposure"): the networks were trained on photos at the
+*reference exposure* (a pixel value is radiance with the flash at
+:data:`ebr_mitsuba.geometry.DEFAULT_FLASH_INTENSITY`). When the near flash intensity in photo
+units is known (``flash_intensity`` or ``capture.json``), every shot is multiplied by
+``DEFAULT_FLASH_INTENSITY / known`` before the networks and the refinement see it, so the
+absolute albedo is restored from the flash; the written images, lighting and intensities are in
+the photos' own units again (``summary["exposure"]``). When it is unknown, the photos are taken
+as they are (the reference exposure assumed) and the intensity is fitted.
 """
 
 from __future__ import annotations
@@ -47,7 +56,7 @@ import numpy as np
 from .. import __version__
 from ..errors import InputError, RuntimeSetupError
 from ..fsutil import atomic_dir
-from ..geometry import FAR_DISTANCE, FAR_FOV, Shot
+from ..geometry import DEFAULT_FLASH_INTENSITY, FAR_DISTANCE, FAR_FOV, Shot
 from ..sgenv import SGEnvironment
 from ..svbrdf import SVBRDF
 from . import outputs
@@ -142,7 +151,18 @@ def _shots(inputs: Inputs) -> dict[str, Shot]:
     return shots
 
 
-def _intensities(cfg: EstimateConfig, inputs: Inputs, maps: SVBRDF, shots: dict[str, Shot]) -> dict:
+def known_flash_intensity(cfg: EstimateConfig, inputs: Inputs) -> tuple[float | None, str | None]:
+    """The near flash intensity in photo units when the capture states it (``flash_intensity``,
+    else ``capture.json``) and its source; (None, None) when it must be fitted."""
+    if cfg.flash_intensity is not None:
+        return float(cfg.flash_intensity), "--flash-intensity"
+    value = capture_intensities(cfg.flash).get(Path(inputs.paths["flash"]).name)
+    return (float(value), "capture.json") if value else (None, None)
+
+
+def _intensities(cfg: EstimateConfig, inputs: Inputs, maps: SVBRDF, shots: dict[str, Shot],
+                 scale: float = 1.0) -> dict:
+    """The flash intensities of the shots (in the units of ``inputs``: the photos × ``scale``)."""
     import dataclasses
 
     result = {}
@@ -152,10 +172,10 @@ def _intensities(cfg: EstimateConfig, inputs: Inputs, maps: SVBRDF, shots: dict[
             continue
         d = shots[name].camera[2]
         if cfg.flash_intensity is not None:
-            value = cfg.flash_intensity * (d / near_distance(inputs.fov)) ** 2
+            value = scale * cfg.flash_intensity * (d / near_distance(inputs.fov)) ** 2
             source = "--flash-intensity"
         elif Path(inputs.paths[name]).name in known:
-            value, source = known[Path(inputs.paths[name]).name], "capture.json"
+            value, source = scale * known[Path(inputs.paths[name]).name], "capture.json"
         else:
             mask = ~inputs.saturated
             value = fit_flash_intensity(
@@ -338,6 +358,12 @@ def run_estimate(
         )
     if cfg.refine.lobes and inputs.flash_only:
         raise InputError("--refine-lobes needs --noflash: a flash-only capture has no lighting to refine")
+    known, known_source = known_flash_intensity(cfg, inputs)
+    if known is not None and not (math.isfinite(known) and known > 0):
+        raise InputError(f"flash intensity {known} ({known_source}): give a finite value > 0")
+    scale = 1.0 if known is None else DEFAULT_FLASH_INTENSITY / known  # to the reference exposure
+    if scale != 1.0:
+        inputs = inputs.scaled(scale)
     stage("inputs", t0)
     for w in inputs.warnings:
         log(f"warning: {w}")
@@ -409,7 +435,7 @@ def run_estimate(
     with _Steps(bar, "re-render") as steps:
         steps(0, 2, "flash intensity")
         shots = _shots(work_inputs)
-        flash_info = _intensities(cfg, work_inputs, maps, shots)
+        flash_info = _intensities(cfg, work_inputs, maps, shots, scale)
         mask = ~work_inputs.saturated
         targets = [ShotTarget(shots[k], work_inputs.images[k], mask) for k in shots]
         mode, spp, table = cfg.refine.mode, cfg.refine.spp, cfg.refine.irradiance_table
@@ -444,6 +470,15 @@ def run_estimate(
             for lv in refined.levels:
                 timings[f"refine at {lv['size']}²"] = lv["seconds"]
 
+    # Back to the photos' units for everything written (module docstring, "Exposure").
+    unit = 1.0 / scale
+    if scale != 1.0:
+        final_env = None if final_env is None else final_env.scaled(unit)
+        final_renders = {k: v * np.float32(unit) for k, v in final_renders.items()}
+        net_renders = {k: v * np.float32(unit) for k, v in net_renders.items()}
+        for rec in flash_info.values():
+            rec["intensity"] = rec["intensity"] * unit
+
     summary = {
         "format": ESTIMATE_FORMAT,
         "version": __version__,
@@ -457,6 +492,7 @@ def run_estimate(
         "ensemble": ensemble,
         "render_mode": mode,
         "flash": flash_info,
+        "exposure": {"to_reference": scale, "source": known_source or "none (the reference exposure assumed)"},
         "lobes": 0 if final_env is None else final_env.num_lobes,
         "rerender_error": {"network": net_errors, "refined": final_errors if refined else None},
         "refine": None
@@ -494,7 +530,7 @@ def run_estimate(
     from .report import write_report
 
     log(f"writing {out}")
-    photos = {k: work_inputs.images[k] for k in shots}
+    photos = {k: work_inputs.images[k] * np.float32(unit) for k in shots}
     with atomic_dir(out) as tmp, _Steps(bar, "outputs", unit="group") as steps:
         # File groups (pure writes) go to a pool of 2 threads for large outputs; the renders of the
         # novel lights and the exemplar pictures run here meanwhile.

@@ -13,8 +13,13 @@ field                   shape                 content
 ``env_exemplars``       (N, E, 3, H, W)       the data set's environment exemplars
 ``maps``                (N, 10, H, W)         ground-truth maps (:data:`MAP_LAYOUT`)
 ``sg``, ``sg_mask``     (N, K, 7), (N, K)     ground-truth lobes (radiance units), padding mask
-``gains``               (N, 3)                exposure × white balance (photo units / radiance)
+``gains``               (N, 3)                white balance (input units / radiance)
 ======================  ====================  ===============================================
+
+Exposure (``docs/conventions.md``, "Exposure"): every image is divided by its sample's recorded
+camera exposure, so the networks see photos at the *reference exposure* (1: a pixel value is
+radiance, the flash at the data set's nominal intensity), the scale ``ebr estimate`` brings a
+capture to from its known flash intensity. Clipping and noise stay those of the exposed photo.
 
 Shots and flash-only images are looked up by name (:meth:`TrainingData.shots`,
 :meth:`TrainingData.flash_only_of`), never by position: a near data set has the shots
@@ -113,14 +118,20 @@ def load_training_data(root: str | Path, max_samples: int = 0, progress=None) ->
     def stack(key):
         return torch.stack([it[key] for it in items])
 
-    gains = torch.stack([it["exposure"] * it["white_balance"] for it in items])
+    gains = torch.stack([it["white_balance"] for it in items])
+    exposure = stack("exposure")
+
+    def reference(key):  # the images at the reference exposure (module docstring)
+        x = stack(key)
+        return x / exposure.view(-1, *([1] * (x.dim() - 1)))
+
     return TrainingData(
         Path(root),
         ds.shot_names,
         ds.flash_only_names,
-        stack("photos"),
-        stack("flash_only"),
-        stack("env_exemplars"),
+        reference("photos"),
+        reference("flash_only"),
+        reference("env_exemplars"),
         stack("maps"),
         stack("sg"),
         stack("sg_mask"),

@@ -8,6 +8,7 @@ the prediction alone (lighting, extraction, selection and the cascade for ``ebre
 
 from __future__ import annotations
 
+import json
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -27,7 +28,8 @@ def _truth(item: dict) -> SVBRDF:
 def model_predictor(bundle, fixed_roughness: float | None = None) -> Callable[[dict, list[str]], SVBRDF]:
     """``predict(item, shot_names) -> SVBRDF`` for a loaded model.
 
-    Photos finer than the model's grid are area-averaged to the grid and the maps area-resampled
+    The photos are divided by the sample's recorded exposure (the reference exposure of
+    ``docs/conventions.md``, "Exposure"). Photos finer than the model's grid are area-averaged to the grid and the maps area-resampled
     back to the data set's resolution (the estimate a grid-sized model makes of that capture)."""
     from .inference import predict
 
@@ -39,7 +41,8 @@ def model_predictor(bundle, fixed_roughness: float | None = None) -> Callable[[d
             return maps.to_svbrdf(0)
         if "noflash" not in names:
             raise InputError(f"the data set has shots {names}; an ebrenv model needs flash / no-flash pairs")
-        img = {n: photos[k].permute(1, 2, 0).numpy() for k, n in enumerate(names)}
+        # at the reference exposure (docs/conventions.md, "Exposure"), as ebr estimate brings a capture
+        img = {n: photos[k].permute(1, 2, 0).numpy() / float(item["exposure"]) for k, n in enumerate(names)}
         size = img[names[0]].shape[:2]
         grid = _grid(bundle)
         if size != (grid, grid):  # a data set finer than the model's grid: the grid-resampled estimate
@@ -63,6 +66,52 @@ def model_predictor(bundle, fixed_roughness: float | None = None) -> Callable[[d
     return run
 
 
+def estimate_predictor(bundle, data: str | Path, refine=None) -> Callable[[dict, list[str]], dict]:
+    """``predict(item, shot_names) -> {"estimate": SVBRDF[, "estimate + refinement": SVBRDF]}``:
+    what ``ebr estimate`` makes of each sample's photo files (its working size, full-resolution
+    cascade and, with ``refine`` steps > 0, test-time refinement), with the data set's known flash
+    intensity in photo units (× the sample's exposure, as an ``ebr capture`` directory's
+    ``capture.json`` states it).
+
+    Each sample runs :func:`ebr_mitsuba.estimate.pipeline.run_estimate` into a temporary
+    directory; the maps are read back from its ``maps/`` (and ``maps_network/``)."""
+    import tempfile
+
+    from ..data.store import sample_dirname
+    from ..estimate.pipeline import EstimateConfig, run_estimate
+    from ..estimate.refine import RefineConfig
+    from ..materials import load_material_dir
+
+    root = Path(data)
+    meta = json.loads((root / "dataset.json").read_text())
+    nominal = float(meta["config"]["capture"]["flash_intensity"])
+    refine = refine or RefineConfig()
+
+    def run(item: dict, names: list[str]) -> dict:
+        if "noflash" not in names:
+            raise InputError(f"{root}: shots {names}; the estimate predictor needs flash / no-flash pairs")
+        sample = root / sample_dirname(int(item["index"]))
+        record = json.loads((sample / "sample.json").read_text())
+        shots = {s["name"]: sample / s["photo"] for s in record["shots"]}
+        # the flash in photo units: what capture.json states for an ebr capture directory
+        intensity = nominal * float(record["camera"]["exposure"])
+        with tempfile.TemporaryDirectory(prefix="ebr-eval-") as tmp:
+            out = Path(tmp) / "estimate"
+            cfg = EstimateConfig(
+                flash=str(shots["flash"]), noflash=str(shots["noflash"]),
+                far_flash=str(shots["far_flash"]) if "far_flash" in shots else None,
+                far_noflash=str(shots["far_noflash"]) if "far_noflash" in shots else None,
+                out=str(out), refine=refine, flash_intensity=intensity,
+            )
+            run_estimate(cfg, bundle=bundle)
+            if refine.steps > 0:
+                return {"estimate": load_material_dir(out / "maps_network"),
+                        "estimate + refinement": load_material_dir(out / "maps")}
+            return {"estimate": load_material_dir(out / "maps")}
+
+    return run
+
+
 def _grid(bundle) -> int:
     res = bundle.resolution
     return int(res[0] if isinstance(res, (tuple, list)) else res)
@@ -78,6 +127,22 @@ def evaluate(
     progress=None,
 ) -> dict:
     """Per-sample and averaged metrics (:mod:`.metrics`) of ``predictor`` on the data set ``data``."""
+    return evaluate_many(lambda item, names: {"": predictor(item, names)}, data, limit=limit, seed=seed,
+                         intensity=intensity, progress=progress)[""]
+
+
+def evaluate_many(
+    predictor: Callable[[dict, list[str]], dict],
+    data: str | Path,
+    *,
+    limit: int = 0,
+    seed: int = 0,
+    intensity: float | None = None,
+    progress=None,
+) -> dict[str, dict]:
+    """:func:`evaluate` of a predictor that returns several estimates per sample (name → SVBRDF,
+    e.g. the network's maps and the refined ones): name → the metrics of that estimate; each
+    estimate's ``seconds`` is the wall time of the whole call."""
     from ..data.dataset import GeneratedDataset
 
     ds = GeneratedDataset(data)
@@ -85,24 +150,29 @@ def evaluate(
         intensity = float(ds.dataset["config"]["capture"]["flash_intensity"])
     pairs = metrics.rerender_pairs(seed)
     n = len(ds) if limit <= 0 else min(limit, len(ds))
-    rows = []
+    rows: dict[str, list[dict]] = {}
     for i in progress(range(n), desc="eval", unit="sample") if progress else range(n):
         item = ds[i]
         t0 = time.perf_counter()
-        est = predictor(item, ds.shot_names)
+        estimates = predictor(item, ds.shot_names)
         seconds = time.perf_counter() - t0
-        row = metrics.sample_metrics(est, _truth(item), pairs, intensity)
-        row.update(
-            index=i,
-            seconds=seconds,
-            material=ds.index["samples"][i]["material"],
-            env=ds.index["samples"][i]["env"],
-        )
-        rows.append(row)
-    out = metrics.average(rows)
-    out["per_sample"] = rows
-    out["seed"] = seed
-    return out
+        truth = _truth(item)
+        for name, est in estimates.items():
+            row = metrics.sample_metrics(est, truth, pairs, intensity)
+            row.update(
+                index=i,
+                seconds=seconds,
+                material=ds.index["samples"][i]["material"],
+                env=ds.index["samples"][i]["env"],
+            )
+            rows.setdefault(name, []).append(row)
+    results = {}
+    for name, r in rows.items():
+        out = metrics.average(r)
+        out["per_sample"] = r
+        out["seed"] = seed
+        results[name] = out
+    return results
 
 
 def group_means(rows: list[dict], key: Callable[[dict], str]) -> dict:
@@ -137,5 +207,5 @@ def oracle_predictor(item: dict, names: list[str]) -> SVBRDF:
 
 
 __all__ = [
-    "evaluate", "group_means", "material_class", "material_group", "model_predictor", "oracle_predictor",
+    "estimate_predictor", "evaluate", "evaluate_many", "group_means", "material_class", "material_group", "model_predictor", "oracle_predictor",
 ]
