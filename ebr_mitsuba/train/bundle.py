@@ -14,7 +14,7 @@ from pathlib import Path
 import torch
 
 from ..data import store
-from ..errors import InputError
+from ..errors import ConfigError, InputError
 from .config import TrainConfig, config_from_dict
 
 
@@ -151,7 +151,7 @@ def bundle_from_checkpoint(data: dict, where: str, device: torch.device | str = 
     try:
         config = config_from_dict(data["config"])
         facts = DataFacts.from_dict(data["data"])
-    except (KeyError, TypeError, ValueError) as exc:
+    except (KeyError, TypeError, ValueError, ConfigError) as exc:
         raise InputError(f"{where}: damaged checkpoint config ({exc}); retrain or re-export it") from None
     bundle = build_bundle(config, facts, device)
     bundle.load_state(data["model"], where)

@@ -24,6 +24,11 @@ key                 content
 leaves a half-written file under the final name). :func:`load_checkpoint` raises
 :class:`~ebr_mitsuba.errors.InputError` with one line naming the file for a missing, corrupt or
 foreign file and for a checkpoint of the wrong ``kind``.
+
+Older dualloss checkpoints (before issue 14) carry the ebrenv-only tables ``stages``,
+``selection`` and ``extract`` in their ``config`` (defaults the user never wrote, which the config
+parser refuses for a dualloss config); :func:`load_checkpoint` drops them (:func:`upgrade_config`),
+so those checkpoints load, evaluate and resume like new ones.
 """
 
 from __future__ import annotations
@@ -36,6 +41,7 @@ import torch
 from .. import __version__
 from ..errors import InputError
 from ..fsutil import atomic_path
+from .config import EBRENV_TABLES
 
 CHECKPOINT_FORMAT = "ebr-checkpoint/1"
 KINDS = ("ebrenv", "dualloss")
@@ -78,6 +84,15 @@ def save_checkpoint(path: str | Path, payload: dict) -> Path:
     return path
 
 
+def upgrade_config(kind: str, config):
+    """The stored ``config`` of a ``kind`` checkpoint as :meth:`TrainConfig.to_dict` writes it now:
+    without the tables that apply to other kinds (older dualloss checkpoints carried
+    ``stages``, ``selection`` and ``extract``). Anything but a dict is returned unchanged."""
+    if kind == "ebrenv" or not isinstance(config, dict):
+        return config
+    return {k: v for k, v in config.items() if k not in EBRENV_TABLES}
+
+
 def load_checkpoint(path: str | Path, expect_kind: str | None = None, map_location="cpu") -> dict:
     """Read a checkpoint; check its format and (if given) its kind.
 
@@ -104,6 +119,7 @@ def load_checkpoint(path: str | Path, expect_kind: str | None = None, map_locati
         raise InputError(
             f"{path}: checkpoint lacks {', '.join(missing)}; it is damaged, retrain or re-export it"
         )
+    data["config"] = upgrade_config(data["kind"], data["config"])
     if expect_kind is not None and data["kind"] != expect_kind:
         raise InputError(
             f"{path}: a '{data['kind']}' checkpoint, but this needs a '{expect_kind}' one "
@@ -137,4 +153,12 @@ def export_model(checkpoint: str | Path, out: str | Path, half: bool = True) -> 
     return out
 
 
-__all__ = ["CHECKPOINT_FORMAT", "KINDS", "export_model", "git_hash", "load_checkpoint", "save_checkpoint"]
+__all__ = [
+    "CHECKPOINT_FORMAT",
+    "KINDS",
+    "export_model",
+    "git_hash",
+    "load_checkpoint",
+    "save_checkpoint",
+    "upgrade_config",
+]

@@ -67,6 +67,10 @@ renders at a 16-pixel comparison: about 0.4 s per sample at 64², against 1.3 s 
 selection's own defaults). **[extract]** — :class:`ebr_mitsuba.extract.ExtractConfig` fields of
 the SG extraction in stage 2 and at inference; defaults :data:`EXTRACT_DEFAULTS`.
 
+[stages], [selection] and [extract] apply to ``kind = "ebrenv"`` alone: a dualloss config that
+sets one is refused, and :meth:`TrainConfig.to_dict` (the config a checkpoint carries) leaves
+them out for a dualloss config.
+
 **[loss]**
 
 =====================  ======  =======  ===========================================================
@@ -162,8 +166,10 @@ class TrainConfig:
     source: str = "<memory>"
 
     def to_dict(self) -> dict:
-        """Plain data (for the checkpoint and ``config.json``)."""
-        return {
+        """Plain data (for the checkpoint and ``config.json``): the tables of this ``kind`` only
+        (a dualloss config has no [stages], [selection] or [extract]), so that
+        :func:`config_from_dict` accepts what it wrote."""
+        out = {
             "kind": self.kind,
             "data": dataclasses.asdict(self.data),
             "model": _plain(self.model),
@@ -173,6 +179,10 @@ class TrainConfig:
             "selection": _plain(self.selection),
             "extract": _plain(self.extract),
         }
+        if self.kind != "ebrenv":
+            for name in EBRENV_TABLES:
+                del out[name]
+        return out
 
     def select_config(self):
         from ..extract.select import SelectConfig
@@ -217,6 +227,7 @@ class TrainConfig:
 
 SELECTION_DEFAULTS = {"env_mode": "sg", "compare_size": 16}
 EXTRACT_DEFAULTS = {"iters": 100, "max_lobes": 16}
+EBRENV_TABLES = ("stages", "selection", "extract")  # tables that apply to kind = "ebrenv" alone
 EBRENV_MODEL_KEYS = ("size", "capture", "use_exemplars", "use_cascade", "use_refinement", "log_eps")
 
 
@@ -303,6 +314,12 @@ def parse_config(doc: dict[str, Any], source: str = "<memory>", base_dir: str | 
         raise ConfigError(f"{source}: [stages] step and sample counts must be >= 0 and finetune_lr > 0")
     if kind == "dualloss" and doc.get("stages") is not None:
         raise ConfigError(f"{source}: [stages] is for kind = 'ebrenv'; a dualloss config sets [train].steps")
+    for name in ("selection", "extract"):
+        if kind == "dualloss" and doc.get(name) is not None:
+            raise ConfigError(
+                f"{source}: [{name}] is for kind = 'ebrenv' (exemplars and SG lighting); remove it "
+                f"from this dualloss config"
+            )
     if train.steps < 0:
         raise ConfigError(f"{source}: [train].steps must be >= 0")
     loss = _table(LossConfig, doc.get("loss"), f"{source}: [loss]")
@@ -357,6 +374,7 @@ def config_from_dict(data: dict) -> TrainConfig:
 
 __all__ = [
     "DataConfig",
+    "EBRENV_TABLES",
     "EXTRACT_DEFAULTS",
     "KINDS",
     "SELECTION_DEFAULTS",
