@@ -1,7 +1,10 @@
-"""Estimate SVBRDF maps and the lighting from a flash/no-flash photo pair (or a flash-only photo).
+"""Estimate SVBRDF maps and the lighting from a flash/no-flash photo pair (or a flash-only photo),
+or SVBRDF maps from five photos lit by five known point lights.
 
   ebr estimate --flash F [--noflash NF] [--far-flash F2 --far-noflash NF2] --out DIR
                [--checkpoint C] [--refine-steps N] [--refine-lobes] [--json] [options]
+  ebr estimate --lights L0 L1 L2 L3 L4 --out DIR [--checkpoint C] [--json]
+  ebr estimate --lights CAPTURE_DIR --out DIR [--checkpoint C] [--json]
 
 Inputs: EXR (linear) or PNG/JPEG (sRGB, 8/16 bit), all of one size, the sample filling the frame
 (see docs/capture-guide.md). Without --noflash the capture is flash-only (a dark room): no
@@ -10,6 +13,17 @@ pictures of the SGs, re-renders of the shots and residuals, renders under novel 
 estimate.json and a self-contained report.html. DIR appears complete or not at all; an earlier
 estimate directory there is replaced, anything else is refused. One run per DIR: a second
 `ebr estimate` into a DIR in use is refused (exit 2) instead of replacing the first one's output.
+
+Five lights (--lights): one fixed camera framing the sample as for --flash, five photos each lit
+by one point light at a known position (no other light), estimated by a dual-loss model
+(`ebr train` with kind = "dualloss"; --checkpoint is needed while none is shipped). The light
+positions (and intensities) come from the capture.json of `ebr capture --setup five-light` in
+CAPTURE_DIR or beside L0; without one, L0..L4 (or CAPTURE_DIR/light0..light4) are at the
+positions of that setup. DIR receives maps/, inputs/, rerender/ and residual/ per light, novel/,
+estimate.json and report.html (no lighting files: the lights are known). Exit 2 for another count
+than five, photos of different sizes, a missing light position, an unreadable file. Of the
+options below only --checkpoint, --flash-intensity (each light's intensity), --saturation-level,
+--max-size and --json apply.
 
 Options (defaults in brackets):
 
@@ -49,10 +63,17 @@ HELP = "estimate SVBRDF maps and lighting from flash/no-flash photos"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--flash", required=True, metavar="F", help="photo with the flash (EXR, PNG, JPEG)")
+    parser.add_argument("--flash", metavar="F", help="photo with the flash (EXR, PNG, JPEG); or --lights")
     parser.add_argument("--noflash", metavar="NF", help="photo without the flash (omit: flash-only capture)")
     parser.add_argument("--far-flash", metavar="F2", help="far shot with the flash (optional)")
     parser.add_argument("--far-noflash", metavar="NF2", help="far shot without the flash")
+    parser.add_argument(
+        "--lights",
+        nargs="+",
+        metavar="L",
+        help="five photos lit by five known point lights (light0..light4), or one directory of "
+        "'ebr capture --setup five-light'; instead of --flash",
+    )
     parser.add_argument("--out", required=True, metavar="DIR", help="output directory")
     parser.add_argument("--checkpoint", metavar="C", help="model checkpoint (default: the shipped model)")
     add_refine_arguments(parser)
@@ -151,10 +172,77 @@ def check_flags(args) -> None:
             raise InputError(f"--out {args.out} contains the input {p}; choose another --out")
 
 
+FLASH_ONLY_OPTIONS = (  # (attribute, flag): options of the flash/no-flash estimate alone
+    ("flash", "--flash"),
+    ("noflash", "--noflash"),
+    ("far_flash", "--far-flash"),
+    ("far_noflash", "--far-noflash"),
+    ("exposure_ratio", "--exposure-ratio"),
+    ("refine_lobes", "--refine-lobes"),
+    ("refine_seconds", "--refine-seconds"),
+)
+
+
+def check_light_flags(args) -> None:
+    """``--lights``: the options that do not apply to it refused, the others checked."""
+    from ..errors import InputError
+
+    for attr, flag in FLASH_ONLY_OPTIONS:
+        if getattr(args, attr) not in (None, False):
+            raise InputError(f"{flag} does not apply to --lights (five known point lights); drop it")
+    d = RefineConfig()
+    for attr, flag, default in (
+        ("refine_steps", "--refine-steps", d.steps),
+        ("refine_lr", "--refine-lr", d.lr),
+        ("render_mode", "--render-mode", d.mode),
+        ("fov", "--fov", DEFAULT_FOV),
+        ("max_shift", "--max-shift", DEFAULT_MAX_SHIFT),
+    ):
+        if getattr(args, attr) != default:
+            raise InputError(f"{flag} does not apply to --lights (five known point lights); drop it")
+    if args.flash_intensity is not None and not (
+        args.flash_intensity > 0 and args.flash_intensity < float("inf")
+    ):
+        raise InputError(f"--flash-intensity {args.flash_intensity}: give a finite value > 0")
+    out = Path(args.out).resolve()
+    for p in args.lights:
+        if out == Path(p).resolve() or out in Path(p).resolve().parents:
+            raise InputError(f"--out {args.out} contains the input {p}; choose another --out")
+
+
+def run_lights(args) -> int:
+    """``ebr estimate --lights``: :func:`ebr_mitsuba.estimate.fivelight.run_fivelight`."""
+    from ..estimate.fivelight import FiveLightConfig, run_fivelight
+    from ..fsutil import output_lock
+
+    check_light_flags(args)
+    cfg = FiveLightConfig(
+        lights=tuple(args.lights),
+        out=args.out,
+        checkpoint=args.checkpoint,
+        light_intensity=args.flash_intensity,
+        saturation_level=args.saturation_level,
+        max_size=args.max_size,
+    )
+    with output_lock(args.out, "ebr estimate"):  # one writer per --out: a second one is refused
+        summary = run_fivelight(cfg, log=say)
+    if args.json:
+        emit_json(summary)
+    else:
+        print_summary(summary)
+    return 0
+
+
 def run(args) -> int:
     from ..estimate.pipeline import EstimateConfig, run_estimate
     from ..fsutil import output_lock
 
+    if args.lights is not None:
+        return run_lights(args)
+    if args.flash is None:
+        from ..errors import InputError
+
+        raise InputError("give --flash F (a flash/no-flash capture) or --lights L0 … L4 (five known lights)")
     check_flags(args)
     cfg = EstimateConfig(
         flash=args.flash,
@@ -194,8 +282,8 @@ def print_summary(summary: dict) -> None:
         if summary["refine"].get("note"):  # the loss rose: the best iterate was kept
             line += f"; {summary['refine']['note']}"
     say(line)
+    lighting = "five known lights" if summary["capture"] == "five-light" else f"{summary['lobes']} SG lobes"
     say(
-        f"wrote {summary['out']} ({summary['resolution']}x{summary['resolution']}, "
-        f"{summary['lobes']} SG lobes, "
+        f"wrote {summary['out']} ({summary['resolution']}x{summary['resolution']}, {lighting}, "
         f"{summary['total_seconds']:.1f} s); report: {Path(summary['out']) / 'report.html'}"
     )

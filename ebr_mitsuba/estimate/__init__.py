@@ -14,6 +14,7 @@ module         contents
 ``outputs``    the files of an estimate directory (maps, env pictures, re-renders, residuals, ...)
 ``report``     the self-contained ``report.html``
 ``pipeline``   the estimate job: stages, timings, the summary (:func:`run_estimate`)
+``fivelight``  the five-light estimate (``--lights``): five known point lights, a dual-loss model
 ``gallery``    flash-only estimates of a photo folder as a docs page
 =============  ===================================================================================
 

@@ -159,17 +159,24 @@ def render_report(out: Path, summary: dict) -> str:
         f"</title><style>{_CSS}</style></head><body>",
         f"<h1>ebr estimate — {html.escape(summary['capture'])} capture</h1>",
     ]
+    if "lights" in inp:  # five-light: each photo with its light's position
+        shot_rows = [[f"{k} (light at {', '.join(f'{c:g}' for c in inp['lights'][k])})", p]
+                     for k, p in inp["paths"].items()]
+    else:
+        shot_rows = [
+            ["flash shot", inp["paths"].get("flash")],
+            ["no-flash shot", inp["paths"].get("noflash", "— (flash-only: no lighting estimate)")],
+            *(
+                [["far shots", f"{inp['paths']['far_flash']}, {inp['paths']['far_noflash']}"]]
+                if "far_flash" in inp["paths"]
+                else []
+            ),
+        ]
     parts.append(
         _table(
             ["item", "value"],
             [
-                ["flash shot", inp["paths"].get("flash")],
-                ["no-flash shot", inp["paths"].get("noflash", "— (flash-only: no lighting estimate)")],
-                *(
-                    [["far shots", f"{inp['paths']['far_flash']}, {inp['paths']['far_noflash']}"]]
-                    if "far_flash" in inp["paths"]
-                    else []
-                ),
+                *shot_rows,
                 ["input size", "x".join(str(v) for v in inp["source_size"][::-1])],
                 [
                     "working resolution",
@@ -179,13 +186,14 @@ def render_report(out: Path, summary: dict) -> str:
                 ],
                 ["field of view", f"{inp['fov']:g}°"],
                 [
-                    "flash intensity",
+                    "light intensity" if "lights" in inp else "flash intensity",
                     "; ".join(
                         f"{k}: {v['intensity']:.4g} W/sr ({v['source']})" for k, v in summary["flash"].items()
                     ),
                 ],
-                ["SG lobes", summary["lobes"]],
-                ["renderer", f"fast Dr.Jit renderer, environment term '{summary['render_mode']}'"],
+                *([["SG lobes", summary["lobes"]],
+                   ["renderer", f"fast Dr.Jit renderer, environment term '{summary['render_mode']}'"]]
+                  if "lights" not in inp else [["renderer", "fast Dr.Jit renderer, the point lights alone"]]),
                 ["total time", f"{summary.get('total_seconds', sum(summary['timings'].values())):.1f} s"],
             ],
         )
@@ -199,7 +207,9 @@ def render_report(out: Path, summary: dict) -> str:
         checks.append([f"alignment ({k} pair)", f"dx {dx:+.1f}, dy {dy:+.1f} px"])
     hl = inp["highlight"] or {"position": None, "fit_r2": 0.0}
     pos, r2 = hl["position"], hl["fit_r2"]
-    if r2 < HIGHLIGHT_MIN_R2:
+    if inp["highlight"] is None:
+        verdict = "not checked (no light at the camera)"
+    elif r2 < HIGHLIGHT_MIN_R2:
         verdict = f"not measurable: the texture dominates the flash falloff (fit R² {r2:.2f})"
     elif pos is None:
         verdict = f"not found (fit R² {r2:.2f})"
@@ -227,6 +237,9 @@ def render_report(out: Path, summary: dict) -> str:
     parts.append("<h2>Lighting</h2>")
     if summary["capture"] == "flash-only":
         parts.append("<p>Flash-only capture: no environment estimated.</p>")
+    elif "lights" in inp:
+        parts.append(f"<p>Five point lights at known positions ({html.escape(str(inp.get('geometry')))}), "
+                     "no environment: nothing to estimate.</p>")
     else:
         parts.append(
             _img(out, "env_sphere.png", "upper hemisphere seen from above (+x right, +y up)")
