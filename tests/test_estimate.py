@@ -383,6 +383,41 @@ def test_refinement_lowers_rerender_error():
     assert not np.allclose(res2.env.amplitude, ENV.scaled(1.5).amplitude)
 
 
+def test_basis_prior_recovers_two_materials_and_fits_the_photos():
+    """basis_params' k-means finds the two (F0, roughness) materials of a two-material map; the
+    refinement with K = 1 keeps specular and roughness spatially constant, with K = 2 within the
+    two bases' hull, and lowers the re-render error of a wrong start."""
+    from ebr_mitsuba.estimate.refine import RefineConfig, ShotTarget, basis_params, refine
+
+    n = 32
+    truth = _material(n)
+    left = np.arange(n)[None, :] < n // 2
+    spec = np.repeat(np.where(left[..., None], 0.04, 0.5).repeat(n, 0), 3, axis=2).astype(np.float32)
+    rough = np.where(left, 0.3, 0.8).repeat(n, 0).astype(np.float32)
+    two = SVBRDF(truth.normal, truth.diffuse, spec, rough)
+    p = basis_params(two, 2)
+    sig = lambda x: 1 / (1 + np.exp(-x))  # noqa: E731
+    got = sorted(zip(sig(p["basis_roughness"]), sig(p["basis_specular"]).reshape(2, 3)[:, 0]))
+    np.testing.assert_allclose(got, [(0.3, 0.04), (0.8, 0.5)], atol=1e-3)
+    assert p["basis_weights"].shape == (n, n, 2)
+
+    shots = [near_shot(True), near_shot(False)]
+    photos = _render(two, shots)
+    mask = np.ones((n, n), bool)
+    targets = [ShotTarget(s, photos[s.name], mask) for s in shots]
+    start = SVBRDF(truth.normal, np.clip(truth.diffuse * 0.7 + 0.05, 0, 1),
+                   np.full((n, n, 3), 0.2, np.float32), np.full((n, n), 0.6, np.float32))
+    one = refine(start, ENV, targets, RefineConfig(steps=30, basis=1))
+    assert one.after["mean"]["rmse"] < one.before["mean"]["rmse"]
+    assert np.ptp(one.maps.roughness) < 1e-5 and np.ptp(one.maps.specular[..., 0]) < 1e-5
+    res = refine(SVBRDF(start.normal, start.diffuse, spec, rough), ENV, targets, RefineConfig(steps=30, basis=2))
+    assert res.after["mean"]["rmse"] <= res.before["mean"]["rmse"]
+    lo, hi = res.maps.roughness.min(), res.maps.roughness.max()
+    assert hi - lo > 0.2  # two materials stay two
+    with pytest.raises(InputError, match="--refine-basis"):
+        RefineConfig(basis=-1)
+
+
 # -- the whole pipeline -----------------------------------------------------------------------------
 
 

@@ -32,6 +32,7 @@ Options (defaults in brackets):
   --refine-lobes         refine the SG lobes too (needs --noflash)
   --refine-lr X          refinement learning rate [0.02]
   --refine-seconds S     time budget of the refinement: it stops after S seconds with a note [none]
+  --refine-basis K       specular and roughness as K basis materials mixed per pixel (0: per pixel) [0]
   --render-mode M        environment term of the re-renders and refinement: sg | quadrature [sg]
   --exposure-ratio R     no-flash exposure / flash exposure when the files carry no EXIF [EXIF or 1]
   --fov DEG              horizontal field of view of the photos [45]
@@ -131,6 +132,14 @@ def add_refine_arguments(parser: argparse.ArgumentParser) -> None:
         help="time budget of the refinement in seconds; it stops there with a note [none]",
     )
     parser.add_argument(
+        "--refine-basis",
+        type=int,
+        default=d.basis,
+        metavar="K",
+        help="specular and roughness as K basis materials with per-pixel weights (0: per pixel) "
+        f"[{d.basis}]",
+    )
+    parser.add_argument(
         "--render-mode", default=d.mode, metavar="M", help=f"environment term: sg or quadrature [{d.mode}]"
     )
 
@@ -142,6 +151,7 @@ def refine_config(args) -> RefineConfig:
         lr=args.refine_lr,
         mode=args.render_mode,
         seconds=args.refine_seconds,
+        basis=args.refine_basis,
     )
 
 

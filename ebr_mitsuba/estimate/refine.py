@@ -80,7 +80,15 @@ option             type     default    meaning
 ``seconds``        float    None       time budget; None: no limit
 ``irradiance_table`` int    64         ``sg`` mode: the diffuse environment term from a table of R²
                                        normals (:mod:`ebr_mitsuba.render.env_sg`); 0: exact per pair
+``basis``          int      0          K > 0: the basis-material prior below; 0: per-pixel maps
 =================  =======  =========  ===============================================================
+
+Basis-material prior (``basis`` = K > 0): one co-located view cannot separate specular F0 from
+roughness pixel by pixel, so specular and roughness are K basis materials (F0_k RGB, r_k, as
+logits) mixed per pixel, ``Σ_k w_k(x) (F0_k, r_k)`` with w the softmax of K free logits per pixel
+(K = 1: one constant specular and roughness); diffuse and normal stay per pixel. The bases start
+from a k-means of the network's (F0, roughness) pixels (:func:`basis_params`); the prior term
+then covers diffuse and normal only. Measured on the test split in ``docs/models.md``.
 """
 
 from __future__ import annotations
@@ -100,6 +108,7 @@ from ..svbrdf import SVBRDF
 _EPS = 1e-3
 REFINE_BYTES_PER_PIXEL = 600  # measured: a 2048² level took 2.5 GB (parameters, Adam, AD graph)
 REFINE_MEMORY = 1.5e9  # bytes a refinement level may take; larger levels are not run (see refine)
+MAX_BASIS = 8  # most basis materials of the specular/roughness prior
 
 
 @dataclass(frozen=True)
@@ -131,6 +140,7 @@ class RefineConfig:
     level_ratio: float = 2.0
     seconds: float | None = None
     irradiance_table: int = 64
+    basis: int = 0
 
     def __post_init__(self):
         if not isinstance(self.steps, int) or self.steps < 0:
@@ -155,6 +165,8 @@ class RefineConfig:
                 raise InputError(f"refinement {name} {v}: give a finite value >= 0")
         if self.mode not in ("sg", "quadrature"):
             raise InputError(f"--render-mode {self.mode!r}: use sg or quadrature")
+        if not (isinstance(self.basis, int) and 0 <= self.basis <= MAX_BASIS):
+            raise InputError(f"--refine-basis {self.basis}: give an integer in [0, {MAX_BASIS}] (0: per-pixel maps)")
 
 
 @dataclass
@@ -386,11 +398,16 @@ def _resample_targets(targets: list[ShotTarget], size: int) -> list[ShotTarget]:
 class _Params:
     """Unconstrained Dr.Jit parameters ↔ DrMaps / DrLobes."""
 
-    def __init__(self, maps: SVBRDF, env: SGEnvironment | None, lobes: bool):
+    def __init__(self, maps: SVBRDF, env: SGEnvironment | None, lobes: bool, basis: int = 0):
         import mitsuba as mi
 
         self.shape = maps.shape
-        self.values = {k: mi.TensorXf(np.ascontiguousarray(v)) for k, v in to_params(maps).items()}
+        self.basis = int(basis)
+        params = to_params(maps)
+        if self.basis:
+            del params["specular"], params["roughness"]
+            params.update(basis_params(maps, self.basis))
+        self.values = {k: mi.TensorXf(np.ascontiguousarray(v)) for k, v in params.items()}
         self.lobes = bool(lobes and env is not None and env.num_lobes > 0)
         self.env = env
         if self.lobes:
@@ -405,12 +422,52 @@ class _Params:
         h, w = self.shape
         xy = dr.unravel(mi.Vector2f, p["normal_xy"].array)
         n = dr.normalize(mi.Vector3f(xy.x, xy.y, 1.0))
+        if self.basis:
+            specular, roughness = self._mixture(p)
+        else:
+            specular = dr.rcp(1 + dr.exp(-p["specular"]))
+            roughness = dr.rcp(1 + dr.exp(-p["roughness"]))
         return DrMaps(
             normal=mi.TensorXf(dr.ravel(n), (h, w, 3)),
             diffuse=dr.rcp(1 + dr.exp(-p["diffuse"])),
-            specular=dr.rcp(1 + dr.exp(-p["specular"])),
-            roughness=dr.rcp(1 + dr.exp(-p["roughness"])),
+            specular=specular,
+            roughness=roughness,
         )
+
+    def _mixture(self, p):
+        """Specular (H, W, 3) and roughness (H, W) of the basis prior: Σ_k w_k(x) (F0_k, r_k),
+        w = softmax of the per-pixel logits (one basis: the constant F0_0, r_0)."""
+        import drjit as dr
+        import mitsuba as mi
+
+        h, w = self.shape
+        k_count = self.basis
+        f0 = dr.rcp(1 + dr.exp(-p["basis_specular"].array))  # (K·3,)
+        rough = dr.rcp(1 + dr.exp(-p["basis_roughness"].array))  # (K,)
+        pixels = h * w
+        i3 = dr.arange(mi.UInt32, pixels * 3)
+        pix3, ch = i3 // 3, i3 % 3
+        ip = dr.arange(mi.UInt32, pixels)
+        if k_count == 1:
+            spec = dr.gather(mi.Float, f0, ch)
+            rgh = dr.gather(mi.Float, rough, ip * 0)
+        else:
+            logits = p["basis_weights"].array  # (H·W·K,)
+            m = dr.gather(mi.Float, logits, ip * k_count)
+            for k in range(1, k_count):
+                m = dr.maximum(m, dr.gather(mi.Float, logits, ip * k_count + k))
+            m = dr.detach(m)
+            e = [dr.exp(dr.gather(mi.Float, logits, ip * k_count + k) - m) for k in range(k_count)]
+            total = e[0]
+            for k in range(1, k_count):
+                total = total + e[k]
+            inv = dr.rcp(total)
+            spec, rgh = mi.Float(0.0), mi.Float(0.0)
+            for k in range(k_count):
+                wk = e[k] * inv
+                spec = spec + dr.gather(mi.Float, wk, pix3) * dr.gather(mi.Float, f0, ch + 3 * k)
+                rgh = rgh + wk * dr.gather(mi.Float, rough, ip * 0 + k)
+        return mi.TensorXf(spec, (h, w, 3)), mi.TensorXf(rgh, (h, w))
 
     def lobes_of(self, p):
         import drjit as dr
@@ -420,6 +477,34 @@ class _Params:
         if not self.lobes:
             return DrLobes.from_env(self.env if self.env is not None else SGEnvironment.empty())
         return DrLobes(p["axis"], dr.exp(p["log_sharpness"]), dr.exp(p["log_amplitude"]))
+
+
+def basis_params(maps: SVBRDF, k_count: int, iterations: int = 10) -> dict[str, np.ndarray]:
+    """The basis prior's parameters from ``maps``: k-means (``iterations`` Lloyd steps, seeded by
+    roughness quantiles) of the pixels' (F0 luminance, roughness) → the basis F0 (RGB mean of the
+    cluster) and roughness as logits, and per-pixel weight logits (4 for the pixel's cluster, 0
+    for the others: weight ≈ 0.95 for two bases)."""
+    spec = maps.specular.reshape(-1, 3).astype(np.float64)
+    rough = maps.roughness.reshape(-1).astype(np.float64)
+    feats = np.stack([spec.mean(axis=1), rough], axis=1)
+    centres = np.stack([np.quantile(feats[:, 0], (np.arange(k_count) + 0.5) / k_count),
+                        np.quantile(rough, (np.arange(k_count) + 0.5) / k_count)], axis=1)
+    label = np.zeros(len(rough), np.int64)
+    for _ in range(iterations):
+        label = np.argmin(((feats[:, None, :] - centres[None]) ** 2).sum(-1), axis=1)
+        for k in range(k_count):
+            if np.any(label == k):
+                centres[k] = feats[label == k].mean(axis=0)
+    f0 = np.stack([spec[label == k].mean(axis=0) if np.any(label == k) else spec.mean(axis=0)
+                   for k in range(k_count)])
+    r = np.array([rough[label == k].mean() if np.any(label == k) else rough.mean() for k in range(k_count)])
+    out = {"basis_specular": _logit(f0.reshape(-1)), "basis_roughness": _logit(r)}
+    if k_count > 1:
+        h, w = maps.shape
+        weights = np.zeros((h * w, k_count), np.float32)
+        weights[np.arange(h * w), label] = 4.0
+        out["basis_weights"] = weights.reshape(h, w, k_count)
+    return out
 
 
 def lobe_params(env: SGEnvironment) -> dict:
@@ -511,12 +596,10 @@ class _Level:
                 loss += config.log_weight * _masked_mean(lg, mask_t, count)
         if config.prior_weight > 0:
             n_enc = (dm.normal + 1.0) * 0.5
-            for name, cur in (
-                ("diffuse", dm.diffuse),
-                ("specular", dm.specular),
-                ("roughness", dm.roughness),
-                ("normal", n_enc),
-            ):
+            priors = [("diffuse", dm.diffuse), ("normal", n_enc)]
+            if not config.basis:  # the basis is the prior of specular and roughness
+                priors += [("specular", dm.specular), ("roughness", dm.roughness)]
+            for name, cur in priors:
                 d = cur - self.init[name]
                 loss += config.prior_weight * dr.mean(dr.ravel(d * d))
         if config.smooth_weight > 0 and h > 1 and w > 1:
@@ -531,7 +614,7 @@ class _Level:
         """The objective of ``maps`` (one forward, no gradients)."""
         import drjit as dr
 
-        params = _Params(maps, env, self.config.lobes)
+        params = _Params(maps, env, self.config.lobes, self.config.basis)
         with dr.suspend_grad():
             return float(self.objective(params, params.values)[0])
 
@@ -543,7 +626,7 @@ class _Level:
         import drjit as dr
 
         config = self.config
-        params = _Params(start, env, config.lobes)
+        params = _Params(start, env, config.lobes, config.basis)
         opt = dr.opt.Adam(lr=config.lr)
         for k, v in params.values.items():
             opt[k] = v

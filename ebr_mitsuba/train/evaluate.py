@@ -34,15 +34,14 @@ def model_predictor(bundle, fixed_roughness: float | None = None) -> Callable[[d
     from .inference import predict
 
     def run(item: dict, names: list[str]) -> SVBRDF:
-        photos = item["photos"]
+        photos = item["photos"] / float(item["exposure"])  # the reference exposure, as in training
         if bundle.kind == "dualloss":
             with torch.no_grad():
                 maps = bundle.dualloss(photos[None].to(bundle.device))
             return maps.to_svbrdf(0)
         if "noflash" not in names:
             raise InputError(f"the data set has shots {names}; an ebrenv model needs flash / no-flash pairs")
-        # at the reference exposure (docs/conventions.md, "Exposure"), as ebr estimate brings a capture
-        img = {n: photos[k].permute(1, 2, 0).numpy() / float(item["exposure"]) for k, n in enumerate(names)}
+        img = {n: photos[k].permute(1, 2, 0).numpy() for k, n in enumerate(names)}
         size = img[names[0]].shape[:2]
         grid = _grid(bundle)
         if size != (grid, grid):  # a data set finer than the model's grid: the grid-resampled estimate
