@@ -27,6 +27,10 @@ luminance percentile mapped to 1) and the sRGB curve, so the pairs compare direc
 at most :data:`PREVIEW_SIZE` pixels per side (area-averaged; the maps' own PNGs are at the
 working size): a 2048² estimate writes its pictures in seconds and ``report.html`` stays a few
 megabytes.
+
+Every writer here runs inside :func:`ebr_mitsuba.imageio.fast_writes`: the EXRs are uncompressed
+(ZIP saved 5–15 % on these float32 images for 10–20× the write time) and the PNGs use zlib
+level 1 (15–30 % larger, a third of the time).
 """
 
 from __future__ import annotations
@@ -37,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from ..geometry import NEAR_DISTANCE, Shot
-from ..imageio import write_exr, write_png
+from ..imageio import fast_writes, write_exr, write_png
 from ..materials import save_material_dir
 from ..sgenv import SGEnvironment
 from ..svbrdf import SVBRDF
@@ -73,7 +77,8 @@ def preview_size(image: np.ndarray) -> np.ndarray:
 
 
 def preview(path: Path, image: np.ndarray, exposure: float) -> Path:
-    return write_png(path, np.clip(preview_size(image) * exposure, 0, 1))
+    with fast_writes():
+        return write_png(path, np.clip(preview_size(image) * exposure, 0, 1))
 
 
 def residual_png(path: Path, render: np.ndarray, photo: np.ndarray) -> Path:
@@ -85,7 +90,8 @@ def residual_png(path: Path, render: np.ndarray, photo: np.ndarray) -> Path:
     rms = float(np.sqrt(np.mean(luminance(photo).astype(np.float64) ** 2))) or 1.0
     r = luminance(render - photo) / (RESIDUAL_SCALE * rms)
     rgb = colormaps["RdBu_r"](np.clip(0.5 + 0.5 * r, 0, 1))[..., :3].astype(np.float32)
-    return write_png(path, rgb, encode="linear")
+    with fast_writes():
+        return write_png(path, rgb, encode="linear")
 
 
 def latlong_directions(height: int) -> np.ndarray:
@@ -118,7 +124,8 @@ def env_pictures(env: SGEnvironment, out: Path, height: int = 128) -> list[str]:
     # Exposure: the sky (median of the upper hemisphere) at 0.25 keeps both sun and sky readable.
     sky = float(np.median(luminance(latlong[: height // 2])))
     k = 0.25 / sky if sky > 0 else exposure_of(latlong)
-    write_exr(out / "env_latlong.exr", latlong)
+    with fast_writes():
+        write_exr(out / "env_latlong.exr", latlong)
     preview(out / "env_latlong.png", latlong, k)
     preview(out / "env_sphere.png", sphere, k)
     return ["env.json", "env_latlong.exr", "env_latlong.png", "env_sphere.png"]
@@ -167,14 +174,16 @@ def write_novel(
             continue
         e = env.rotated_z(math.radians(rot)) if rot is not None else None
         img = rerender(maps, e, shot, mode)
-        write_exr(out / "novel" / f"{name}.exr", img)
+        with fast_writes():
+            write_exr(out / "novel" / f"{name}.exr", img)
         preview(out / "novel" / f"{name}.png", img, exposure_of(img))
         files += [f"novel/{name}.exr", f"novel/{name}.png"]
     return files
 
 
 def write_maps(maps: SVBRDF, path: Path, source: str) -> list[str]:
-    save_material_dir(maps, path, meta={"source": source, "licence": "as the input photos"})
+    with fast_writes():
+        save_material_dir(maps, path, meta={"source": source, "licence": "as the input photos"})
     base = path.name
     return [
         f"{base}/{n}.{ext}" for n in ("normal", "diffuse", "specular", "roughness") for ext in ("exr", "png")
@@ -197,9 +206,10 @@ def write_shots(
         files.append(f"inputs/{name}.png")
         if name in renders:
             r = renders[name]
-            write_exr(out / "rerender" / f"{name}.exr", r)
+            with fast_writes():
+                write_exr(out / "rerender" / f"{name}.exr", r)
+                write_exr(out / "residual" / f"{name}.exr", r - photo)
             preview(out / "rerender" / f"{name}.png", r, k)
-            write_exr(out / "residual" / f"{name}.exr", r - photo)
             residual_png(out / "residual" / f"{name}.png", r, photo)
             files += [
                 f"rerender/{name}.exr",
@@ -232,7 +242,8 @@ def write_exemplars(out: Path, prediction) -> list[str]:
         (out / "exemplars").mkdir(exist_ok=True)
         safe = "".join(ch if ch.isalnum() or ch in "._-" else "_" for ch in str(name))
         exposure = shared if name.startswith("exemplar_") else exposure_of(a)
-        write_png(out / "exemplars" / f"{safe}.png", a * exposure, clip="hue")
+        with fast_writes():
+            write_png(out / "exemplars" / f"{safe}.png", a * exposure, clip="hue")
         files.append(f"exemplars/{safe}.png")
     return files
 

