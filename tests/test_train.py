@@ -423,9 +423,10 @@ def test_bench_models_page(tiny, tiny_model, tmp_path, monkeypatch):
     from ebr_mitsuba.bench import models
     from ebr_mitsuba.train import inference
 
-    for name in ("EBR_SPLIT_DATA", "EBR_TRAIN_DATA", "EBR_SHIPPED_RUN", "EBR_CANDIDATES"):
+    for name in ("EBR_SPLIT_DATA", "EBR_TRAIN_DATA", "EBR_SHIPPED_RUN", "EBR_CANDIDATES", "EBR_REFINE"):
         monkeypatch.delenv(name, raising=False)
     assert "EBR_SPLIT_DATA" in models.unavailable()
+    monkeypatch.setenv("EBR_REFINE", '{"steps": 4}')
     run_dir = tmp_path / "run"
     run_dir.mkdir()
     shutil.copy(tiny_model.parent / "log.csv", run_dir / "log.csv")
@@ -441,8 +442,18 @@ def test_bench_models_page(tiny, tiny_model, tmp_path, monkeypatch):
                 "| EBREnv paper"):
         assert row in text
     assert "quick run" in text and "| lighting | 2 |" in text and "**previous**:" in text
+    # ebr estimate on the photo files, with and without refinement, judged per case on maps and lights
+    assert "| shipped model, ebr estimate |" in text
+    assert "| shipped model, ebr estimate + refinement (steps 4) |" in text
+    verdict = json.loads((tmp_path / "docs" / "models.json").read_text())["refinement_verdict"]
+    assert verdict["n"] == 2 and len(verdict["cases"]) == 2 and 0 <= verdict["both"] <= 1
+    assert f"both in {100 * verdict['both']:.0f} %" in text
     for png in ("models_loss.png", "models_maps.png", "models_classes.png"):
         assert (tmp_path / "docs" / png).is_file()
     monkeypatch.setenv("EBR_CANDIDATES", "broken")
     with pytest.raises(InputError, match="EBR_CANDIDATES"):
         models.run(tmp_path / "docs2", quick=True, log=lambda msg: None)
+    monkeypatch.setenv("EBR_CANDIDATES", "")
+    monkeypatch.setenv("EBR_REFINE", "[1]")
+    with pytest.raises(InputError, match="EBR_REFINE"):
+        models.run(tmp_path / "docs3", quick=True, log=lambda msg: None)

@@ -12,7 +12,12 @@ predictors on the same samples and lights:
   (``name=path`` separated by ``;``: a new model, the previous model, the model without exemplars);
 * the oracle constant: each sample's own ground-truth mean maps
   (:func:`ebr_mitsuba.train.baselines.oracle_constant`);
-* the training-set mean maps (``EBR_TRAIN_DATA``, when set).
+* the training-set mean maps (``EBR_TRAIN_DATA``, when set);
+* the shipped model as ``ebr estimate`` runs it on each test capture's photo files (its working
+  size, the full-resolution cascade, the known flash intensity), and the same estimates after
+  test-time refinement (``EBR_REFINE``: the refinement options as JSON, default
+  :data:`DEFAULT_REFINE`; ``{"steps": 0}`` skips both). The refinement is judged per test case on
+  the maps and on the held-out lights, never on the photos it fitted.
 
 The normal-structure figure is the per-sample spatial standard deviation of the predicted
 normals' x and y components over the truth's (1 = as much structure as the truth).
@@ -37,8 +42,10 @@ from ._common import machine
 
 DEFAULT_OUT = "docs"
 QUICK_LIMIT = 2
+DEFAULT_REFINE = {"steps": 100}  # the refinement judged on the test split (EBR_REFINE overrides)
 THUMB = 96  # contact-sheet thumbnail size
-COLUMNS = ("normal", "diffuse", "roughness", "specular", "mean")
+MAP_NAMES = ("normal", "diffuse", "roughness", "specular")
+COLUMNS = (*MAP_NAMES, "mean")
 # EBREnv (Table 1, near field; their test set is MatSynth renders, not this split).
 PAPER_ROW = {"normal": 0.0351, "diffuse": 0.0285, "roughness": 0.0718, "specular": 0.0446,
              "rerender_rmse": 0.0394}
@@ -67,6 +74,20 @@ def _candidates() -> list[tuple[str, Path]]:
             raise InputError(f"EBR_CANDIDATES: {path}: no such checkpoint")
         out.append((name, Path(path)))
     return out
+
+
+def _refine_options() -> dict:
+    text = os.environ.get("EBR_REFINE")
+    if not text:
+        return dict(DEFAULT_REFINE)
+    try:
+        opts = json.loads(text)
+    except json.JSONDecodeError:
+        opts = None
+    if not isinstance(opts, dict):
+        raise InputError(f"EBR_REFINE={text!r}: give the refinement options as a JSON object, e.g. "
+                         '\'{"steps": 100, "basis": 2}\'')
+    return opts
 
 
 def training_summary(run_dir: Path) -> dict:
@@ -156,6 +177,64 @@ def _recording(predict, store: list):
     return run
 
 
+def _recording_many(predict, stores: dict[str, list]):
+    """:func:`_recording` for a predictor of several estimates per sample (name → SVBRDF)."""
+    from ..materials import resample_svbrdf
+
+    def run(item, names):
+        out = predict(item, names)
+        for key, est in out.items():
+            stores.setdefault(key, []).append((_normal_spread(est), resample_svbrdf(est, THUMB)))
+        return out
+
+    return run
+
+
+def _refine_text(opts: dict) -> str:
+    return ", ".join(f"{k} {v}" for k, v in opts.items())
+
+
+def refinement_verdict(before: list[dict], after: list[dict]) -> dict:
+    """Per test case, whether the refinement lowered the mean per-map RMSE, the held-out-light
+    re-render RMSE, and both; with the fractions of cases and per-map counts."""
+    cases = []
+    for b, a in zip(before, after):
+        maps = a["per_map_rmse"]["mean"] < b["per_map_rmse"]["mean"]
+        lights = a["rerender_rmse"] < b["rerender_rmse"]
+        per_map = {k: a["per_map_rmse"][k] < b["per_map_rmse"][k] for k in MAP_NAMES}
+        cases.append({"index": b["index"], "maps": maps, "lights": lights, "both": maps and lights,
+                      **per_map})
+    n = max(len(cases), 1)
+    out = {k: sum(c[k] for c in cases) / n for k in ("maps", "lights", "both", *MAP_NAMES)}
+    out["n"] = len(cases)
+    out["seconds_per_sample"] = {"with": float(np.mean([a["seconds"] for a in after])) if after else 0.0}
+    out["cases"] = cases
+    return out
+
+
+def _verdict_lines(verdict: dict | None) -> list[str]:
+    if not verdict:
+        return ["(Refinement not measured: `EBR_REFINE` has 0 steps.)", ""]
+    pct = {k: f"{100 * verdict[k]:.0f} %" for k in ("maps", "lights", "both", *MAP_NAMES)}
+    from ..estimate.refine import RefineConfig
+
+    ok = verdict["both"] >= 0.8
+    default = RefineConfig().steps
+    return [
+        f"Refinement ({_refine_text(verdict['options'])}) against the same estimates without it, per test "
+        f"case ({verdict['n']}): the mean per-map RMSE is lower in {pct['maps']} of the cases, the "
+        f"held-out-light re-render RMSE in {pct['lights']}, both in {pct['both']} "
+        f"(acceptance: at least 80 % — "
+        f"{'yes' if ok else 'no'}). Per map, lower in: normal {pct['normal']}, diffuse {pct['diffuse']}, "
+        f"roughness {pct['roughness']}, specular {pct['specular']}. Estimate + refinement took "
+        f"{verdict['seconds_per_sample']['with']:.1f} s per capture (whole `ebr estimate`, in process). "
+        + (f"`ebr estimate` refines by default (`--refine-steps {default}`)." if default else
+           "`ebr estimate` does not refine by default (`--refine-steps 0`): refinement is an option, "
+           "for the photos' re-render rather than for the maps."),
+        "",
+    ]
+
+
 def _row(name: str, m: dict, extra: str = "") -> str:
     pm = m["per_map_rmse"]
     cells = " | ".join(f"{pm[k]:.4f}" for k in COLUMNS)
@@ -207,11 +286,14 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
     """Evaluate every predictor on ``$EBR_SPLIT_DATA`` and write ``out_dir/models.md``."""
     from ..commands._common import progress
     from ..data.dataset import GeneratedDataset
+    from ..estimate.refine import RefineConfig
     from ..fsutil import atomic_write_text
     from ..train.baselines import MeanMaps
     from ..train.evaluate import (
         _truth,
+        estimate_predictor,
         evaluate,
+        evaluate_many,
         group_means,
         material_class,
         model_predictor,
@@ -239,15 +321,35 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
         predictors.append(("training-set mean maps",
                            lambda item, names: mean.predict(tuple(item["maps"].shape[1:]))))
 
+    refine_opts = _refine_options()
+    refine_cfg = RefineConfig(**refine_opts)
+
     t0 = time.perf_counter()
     results, records = {}, {}
-    for name, predict in predictors:
-        store: list = []
-        log(f"[bench models] {name}")
-        res = evaluate(_recording(predict, store), data, limit=n, seed=0, progress=progress)
+
+    def finish(name, res, store):
         res["classes"] = group_means(res["per_sample"], material_class)
         res["normal_structure"] = float(np.mean([s / max(t, 1e-6) for (s, _), t in zip(store, truth_spread)]))
         results[name], records[name] = res, store
+
+    for name, predict in predictors:
+        store: list = []
+        log(f"[bench models] {name}")
+        finish(name, evaluate(_recording(predict, store), data, limit=n, seed=0, progress=progress), store)
+    verdict = None
+    if refine_cfg.steps > 0:
+        label = {"estimate": "shipped model, ebr estimate",
+                 "estimate + refinement": "shipped model, ebr estimate + refinement "
+                                          f"({_refine_text(refine_opts)})"}
+        log(f"[bench models] {label['estimate']}, with and without refinement")
+        stores: dict[str, list] = {}
+        many = evaluate_many(_recording_many(estimate_predictor(load_model(None), data, refine_cfg), stores),
+                             data, limit=n, seed=0, progress=progress)
+        for key, res in many.items():
+            finish(label[key], res, stores[key])
+        verdict = refinement_verdict(many["estimate"]["per_sample"],
+                                     many["estimate + refinement"]["per_sample"])
+        verdict["options"] = refine_opts
     seconds = time.perf_counter() - t0
 
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -257,11 +359,11 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
     summary = training_summary(Path(run_dir)) if run_dir else None
     if summary:
         _plot_loss(summary, out_dir / "models_loss.png")
-    page = _page(results, ds, n, seconds, quick, summary, run_dir)
+    page = _page(results, ds, n, seconds, quick, summary, run_dir, verdict)
     atomic_write_text(out_dir / "models.md", page)
     atomic_write_text(out_dir / "models.json", json.dumps(
-        {k: {kk: vv for kk, vv in v.items() if kk != "per_sample"} for k, v in results.items()},
-        indent=1, default=float) + "\n")
+        {**{k: {kk: vv for kk, vv in v.items() if kk != "per_sample"} for k, v in results.items()},
+         "refinement_verdict": verdict}, indent=1, default=float) + "\n")
     return out_dir / "models.md"
 
 
@@ -328,7 +430,7 @@ def _model_card(summary: dict | None, run_dir: str | None) -> list[str]:
 
 
 def _page(results: dict, ds, n: int, seconds: float, quick: bool, summary: dict | None = None,
-          run_dir: str | None = None) -> str:
+          run_dir: str | None = None, verdict: dict | None = None) -> str:
     from ..data.split import load_split
 
     split = load_split()
@@ -385,6 +487,9 @@ def _page(results: dict, ds, n: int, seconds: float, quick: bool, summary: dict 
         "",
         *_acceptance(results),
         "",
+        "## Test-time refinement",
+        "",
+        *_verdict_lines(verdict),
         "## By material class (mean per-map RMSE / re-render RMSE)",
         "",
         chead, crule, *crows,
