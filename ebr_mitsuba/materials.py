@@ -342,11 +342,22 @@ def read_texture_index(path: str | os.PathLike) -> dict:
     return doc["sets"]
 
 
+_INDEX_CACHE: dict[tuple[str, int, int], dict] = {}
+
+
 def _indexed_entry(directory: Path) -> dict | None:
+    """The index entry of a texture set (None when its folder has no index); the parsed index is
+    kept per (path, mtime, size), so loading many sets parses it once and an edit is seen."""
     index = directory.parent / TEXTURE_INDEX
-    if not index.is_file():
+    try:
+        st = index.stat()
+    except FileNotFoundError:
         return None
-    return read_texture_index(index).get(directory.name)
+    key = (str(index.resolve()), st.st_mtime_ns, st.st_size)
+    if key not in _INDEX_CACHE:
+        _INDEX_CACHE.clear()  # one index at a time is the usual case; no unbounded growth
+        _INDEX_CACHE[key] = read_texture_index(index)
+    return _INDEX_CACHE[key].get(directory.name)
 
 
 def _load_indexed_set(directory: Path, entry: dict) -> SVBRDF:

@@ -506,7 +506,7 @@ def test_refinement_time_budget_stops_with_a_note(tmp_path, capsys, fake_lightin
     assert code == 0, err
     summary = json.loads(stdout)
     assert summary["refine"]["stopped"] and "stopped by the time budget of 2 s" in err
-    assert summary["refine"]["seconds"] < 2 + 5.0
+    assert 0 < summary["refine"]["steps_run"] < 100000  # stopped by the budget, not by the step count
     code, _, err = _estimate(
         ["--flash", paths["flash"], "--out", tmp_path / "x", "--refine-seconds", "2"], capsys
     )
