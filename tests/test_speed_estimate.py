@@ -134,3 +134,46 @@ def test_torch_brdf_normalize_equals_the_vector_norm_form(layout):
     g_want, = torch.autograd.grad((want * w).sum(), v)
     g_got, = torch.autograd.grad((got * w).sum(), v)
     torch.testing.assert_close(g_got, g_want, rtol=1e-10, atol=1e-12)
+
+
+def _random_maps(rng, size: int):
+    from ebr_mitsuba.svbrdf import SVBRDF
+
+    n = rng.normal(size=(size, size, 3)).astype(np.float32)
+    n[..., 2] = np.abs(n[..., 2]) + 0.2
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    rand = [rng.random((size, size, 3)).astype(np.float32) for _ in range(2)]
+    return SVBRDF(n, rand[0], rand[1], rng.random((size, size)).astype(np.float32))
+
+
+def test_ensemble_equals_the_numpy_mean_of_upsampled_maps(rng):
+    from ebr_mitsuba.estimate.fullres import _Ensemble, _MapSum, upsample_maps
+    from ebr_mitsuba.nets.maps import Maps
+
+    members = [_random_maps(rng, s) for s in (32, 16, 8)]
+    want = _MapSum(32)
+    got = _Ensemble(32)
+    for m in members:
+        want.add(upsample_maps(m, 32))
+    got.add_svbrdf(members[0])
+    torch_maps = Maps(*(torch.from_numpy(np.ascontiguousarray(
+        (a if a.ndim == 3 else a[..., None]).transpose(2, 0, 1)))[None]
+        for a in (members[1].normal, members[1].diffuse, members[1].specular, members[1].roughness)))
+    got.add_maps(torch_maps)
+    got.add_svbrdf(members[2])
+    w, g = want.mean("a"), got.mean("b")
+    for name in ("normal", "diffuse", "specular", "roughness"):
+        np.testing.assert_allclose(getattr(g, name), getattr(w, name), rtol=0, atol=2e-6)
+
+
+def test_add_shuffled_equals_pixel_shuffle_plus_skip():
+    from ebr_mitsuba.estimate.fastnet import _add_shuffled, _shuffle_rows
+
+    c, c_in = 4, 6
+    w = torch.randn(4 * c, c_in)
+    h = torch.randn(2, 5, 3, c_in)
+    skip = torch.randn(2, 10, 6, c)
+    y = torch.nn.functional.linear(h, w).permute(0, 3, 1, 2)  # (B, 4C, H, W), PixelShuffle order
+    want = torch.nn.PixelShuffle(2)(y).permute(0, 2, 3, 1) + skip
+    got = _add_shuffled(skip.clone(), torch.nn.functional.linear(h, _shuffle_rows(w)))
+    torch.testing.assert_close(got, want, rtol=0, atol=1e-6)

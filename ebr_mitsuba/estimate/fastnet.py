@@ -10,7 +10,9 @@ against it in ``tests/test_fullres.py`` to 1e-4 relative), arranged for images o
 * **folded affine maps**: each LayerNorm's scale and shift is folded into the 1×1 convolution that
   follows it, the residual scales β, γ into the convolution before them, and the simplified
   channel attention (a per-image channel scale) into the projection after it;
-* **fused residuals**: the projections write ``x + W·h`` in one GEMM (``baddbmm``).
+* **fused residuals**: the projections write ``x + W·h`` in one GEMM (``baddbmm``), and each
+  decoder level adds its pixel-shuffled up-projection into the encoder's skip tensor in place
+  (the up-projection's rows reordered so that the shuffle is a strided view, not a copy).
 
 A NAF block then makes about 11 passes over its activations instead of about 25. The numbers
 are in docs/bench/estimate.md (time per stage, FLOPs per megapixel against this CPU's peak).
@@ -85,11 +87,20 @@ def _conv_cl(x: torch.Tensor, conv: torch.nn.Conv2d) -> torch.Tensor:
     return y.permute(0, 2, 3, 1).contiguous()
 
 
-def _pixel_shuffle_cl(x: torch.Tensor) -> torch.Tensor:
-    """``nn.PixelShuffle(2)`` on (B, H, W, 4C) → (B, 2H, 2W, C) (channel c·4 + 2i + j → (c, i, j))."""
-    b, h, w, c4 = x.shape
+def _shuffle_rows(up_w: torch.Tensor) -> torch.Tensor:
+    """The (4C, C_in) up-projection's rows from PixelShuffle order (c·4 + 2i + j) to (i, j, c)
+    order ((2i + j)·C + c), for :func:`_add_shuffled`."""
+    c = up_w.shape[0] // 4
+    return up_w.reshape(c, 2, 2, -1).permute(1, 2, 0, 3).reshape(4 * c, -1).contiguous()
+
+
+def _add_shuffled(skip: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    """``skip + PixelShuffle(2)(y)`` written into ``skip`` (B, 2H, 2W, C), ``y`` (B, H, W, 4C) in
+    the (i, j, c) channel order of :func:`_shuffle_rows`: one strided pass, no shuffled copy."""
+    b, h, w, c4 = y.shape
     c = c4 // 4
-    return x.reshape(b, h, w, c, 2, 2).permute(0, 1, 4, 2, 5, 3).reshape(b, 2 * h, 2 * w, c)
+    skip.view(b, h, 2, w, 2, c).add_(y.view(b, h, w, 2, 2, c).permute(0, 1, 3, 2, 4, 5))
+    return skip
 
 
 class FastNAFNet(torch.nn.Module):
@@ -106,7 +117,7 @@ class FastNAFNet(torch.nn.Module):
         self.encoders = [[_Block(b) for b in enc] for enc in net.encoders]
         self.middle = [_Block(b) for b in net.middle]
         self.decoders = [[_Block(b) for b in dec] for dec in net.decoders]
-        self.ups = [_linear_weights(up[0])[0] for up in net.ups]
+        self.ups = [_shuffle_rows(_linear_weights(up[0])[0]) for up in net.ups]
 
     @torch.no_grad()
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -120,7 +131,7 @@ class FastNAFNet(torch.nn.Module):
         pad_h, pad_w = (-height) % multiple, (-width) % multiple
         if pad_h or pad_w:
             x = F.pad(x, (0, pad_w, 0, pad_h), mode="replicate")
-        h = _conv_cl(x.float().permute(0, 2, 3, 1), net.intro)
+        h = _conv_cl(x.float().contiguous(memory_format=torch.channels_last).permute(0, 2, 3, 1), net.intro)
         skips = []
         for blocks, down in zip(self.encoders, net.downs):
             for block in blocks:
@@ -130,7 +141,7 @@ class FastNAFNet(torch.nn.Module):
         for block in self.middle:
             h = block(h)
         for up_w, blocks, skip in zip(self.ups, self.decoders, reversed(skips)):
-            h = _pixel_shuffle_cl(F.linear(h, up_w)).add_(skip)
+            h = _add_shuffled(skip, F.linear(h, up_w))  # the skip is used once: overwritten
             for block in blocks:
                 h = block(h)
         out = _conv_cl(h, net.ending)

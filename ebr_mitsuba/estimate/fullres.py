@@ -47,13 +47,22 @@ at 1024²: 0.091 → 0.086 → 0.039); together 1024² is the better estimate on
 
 Taking all four maps' low frequencies from the grid pass (what the former tiled estimate did)
 loses the diffuse gain (tiles at 1024²: 0.125).
+
+Speed (2 cores): the grid pass runs on one torch thread (a 64² pass gains nothing from two, and
+on a loaded machine two threads waiting on each other took 3 s instead of 0.1 s); the passes'
+maps are upsampled and summed as one (1, 10, N, N) tensor (:class:`_Ensemble`) and checked as an
+:class:`~ebr_mitsuba.svbrdf.SVBRDF` once, at the end; importing this module asks PyTorch to put
+its large CPU tensors on transparent huge pages (:func:`_huge_pages`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
+import os
+import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -70,6 +79,33 @@ BYTES_PER_PIXEL_CHANNEL = (
 )  # measured peak of a FastNAFNet pass: ≈ 14 float32 per pixel and width channel
 TILE_MULTIPLE = 16  # tile sides are multiples of this (2^levels of the shipped networks' padding)
 ENSEMBLE = 3  # pass sizes averaged into the maps: N, N/2, N/4 (at least the grid)
+THP_ENV = "THP_MEM_ALLOC_ENABLE"  # PyTorch's switch for transparent huge pages of CPU tensors
+
+
+def _huge_pages() -> None:
+    """Ask PyTorch's CPU allocator for transparent huge pages (``THP_MEM_ALLOC_ENABLE=1``, read
+    once when torch is imported; no effect once it is, or where the kernel has THP off). The
+    networks at N allocate hundreds of fresh tensors of 32–64 MB: on 4 KB pages each costs 8192
+    page faults, half the time of an elementwise pass over it (1 Mpx × 8 channels: 31 ms → 16 ms;
+    a 1024² ``predict_maps`` about 10 % less CPU time). An explicit setting is kept."""
+    if "torch" not in sys.modules:
+        os.environ.setdefault(THP_ENV, "1")
+
+
+_huge_pages()
+
+
+@contextlib.contextmanager
+def torch_threads(count: int) -> Iterator[None]:
+    """torch's intra-op thread count set to ``count`` within the block (restored after)."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(count)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
 
 
 def detail_merge(low: np.ndarray, high: np.ndarray) -> np.ndarray:
@@ -278,6 +314,69 @@ class _MapSum:
 _CHANNELS = (("normal", 3), ("diffuse", 3), ("specular", 3), ("roughness", 1))
 
 
+class _Ensemble:
+    """The mean of the passes' maps at N (module docstring, step 5), in torch: each member's
+    maps as one (1, 10, s, s) tensor (normal, diffuse, specular, roughness), bilinearly upsampled
+    to N in one call, normals renormalised, summed; :meth:`mean` as :meth:`_MapSum.mean`. The
+    same values as ``_MapSum.add(upsample_maps(maps, n))`` (float32 rounding apart)."""
+
+    def __init__(self, n: int):
+        self.n = n
+        self.acc = None
+        self.count = 0
+
+    def add(self, stacked) -> None:
+        """``stacked``: (1, 10, s, s) float32 tensor, diffuse, specular and roughness in [0, 1]."""
+        import torch
+        import torch.nn.functional as F
+
+        with torch.no_grad():
+            if stacked.shape[-1] != self.n:
+                stacked = F.interpolate(stacked, size=(self.n, self.n), mode="bilinear", align_corners=False)
+                normal = stacked[:, :3]
+                normal /= torch.sqrt((normal * normal).sum(dim=1, keepdim=True))
+            if self.acc is None:
+                self.acc = stacked.clone()
+            else:
+                self.acc += stacked
+        self.count += 1
+
+    def add_maps(self, maps) -> None:
+        """A pass's :class:`~ebr_mitsuba.nets.maps.Maps` (batch element 0), clipped as
+        ``Maps.to_svbrdf`` clips."""
+        import torch
+
+        with torch.no_grad():
+            parts = [maps.normal[:1]]
+            parts += [getattr(maps, k)[:1].clamp(0, 1) for k in ("diffuse", "specular", "roughness")]
+            self.add(torch.cat([p.detach().to("cpu", torch.float32) for p in parts], dim=1))
+
+    def add_svbrdf(self, maps: SVBRDF) -> None:
+        import torch
+
+        parts = [maps.normal, maps.diffuse, maps.specular, maps.roughness[..., None]]
+        arr = np.concatenate([np.asarray(p, np.float32) for p in parts], axis=-1)
+        self.add(torch.from_numpy(np.ascontiguousarray(arr.transpose(2, 0, 1)))[None])
+
+    def mean(self, source: str) -> SVBRDF:
+        import torch
+
+        with torch.no_grad():
+            avg = self.acc[0] / self.count
+            normal = avg[:3]
+            normal[2].clamp_(min=1e-3)
+            normal /= torch.sqrt((normal * normal).sum(dim=0, keepdim=True))
+            avg[3:].clamp_(0, 1)
+            hwc = avg.permute(1, 2, 0).contiguous().numpy()
+        return SVBRDF(
+            normal=hwc[..., 0:3],
+            diffuse=hwc[..., 3:6],
+            specular=hwc[..., 6:9],
+            roughness=hwc[..., 9],
+            source=source,
+        )
+
+
 LOW_FREQUENCY_MAPS = ("specular", "roughness")  # their low frequencies come from the grid pass
 
 
@@ -359,35 +458,36 @@ def predict_maps(
     # Grid pass: the whole capture at the grid, for the capture's flash scale (and a member of the
     # ensemble when the working size is within 4× the grid).
     t0 = time.perf_counter()
-    g_in = inf.grid_pass_inputs(
-        bundle,
-        lighting,
-        grid_photos["flash"],
-        grid_photos.get("noflash"),
-        grid_photos.get("far_flash"),
-        grid_photos.get("far_noflash"),
-    )
-    g_out = inf.cascade_pass(bundle, g_in, lighting.env)  # the module: faster than FastNAFNet at the grid
-    step("grid pass")
-    grid_maps = g_out.maps.to_svbrdf(0, source="ebr_mitsuba network (grid pass)")
-    dev = g_out.maps.normal.device
-    k_near = float(
-        flash_scale(g_out.coarse, torch.from_numpy(g_in.flash_only).permute(2, 0, 1)[None].to(dev))[0]
-    )
-    k_far = None
-    if c.num_photos == 4 and g_in.far_flash_only is not None:
-        far_fo = torch.from_numpy(g_in.far_flash_only).permute(2, 0, 1)[None].to(dev)
-        k_far = float(flash_scale(g_out.coarse, far_fo, far=True)[0])
+    with torch_threads(1):  # module docstring, "Speed"
+        g_in = inf.grid_pass_inputs(
+            bundle,
+            lighting,
+            grid_photos["flash"],
+            grid_photos.get("noflash"),
+            grid_photos.get("far_flash"),
+            grid_photos.get("far_noflash"),
+        )
+        g_out = inf.cascade_pass(bundle, g_in, lighting.env)  # the module: faster than FastNAFNet at the grid
+        step("grid pass")
+        grid_maps = g_out.maps.to_svbrdf(0, source="ebr_mitsuba network (grid pass)")
+        dev = g_out.maps.normal.device
+        k_near = float(
+            flash_scale(g_out.coarse, torch.from_numpy(g_in.flash_only).permute(2, 0, 1)[None].to(dev))[0]
+        )
+        k_far = None
+        if c.num_photos == 4 and g_in.far_flash_only is not None:
+            far_fo = torch.from_numpy(g_in.far_flash_only).permute(2, 0, 1)[None].to(dev)
+            k_far = float(flash_scale(g_out.coarse, far_fo, far=True)[0])
     scales = (k_near, k_far)
     timings["grid_pass"] = time.perf_counter() - t0
 
     options = RenderOptions(irradiance_table=IRRADIANCE_TABLE, lobe_loop=True)
-    total_maps = _MapSum(n)
+    total_maps = _Ensemble(n)
     timings["exemplars"] = timings["full_pass"] = 0.0
     full_tile, full_starts = n, [0]
     for size in members:
         if size == g:
-            total_maps.add(upsample_maps(grid_maps, n))
+            total_maps.add_svbrdf(grid_maps)
             continue
         tile, starts = plans[size]
         label = "full size" if size == n else f"{size}x{size}"
@@ -410,7 +510,7 @@ def predict_maps(
                 scales=scales,
                 render_options=options,
             )
-            maps = out.maps.to_svbrdf(0, source="ebr_mitsuba network")
+            total_maps.add_maps(out.maps)
         else:
             w1 = ramp(tile, min(overlap, tile - 1))
             weight = np.outer(w1, w1)[..., None].astype(np.float32)
@@ -427,10 +527,9 @@ def predict_maps(
                         render_options=options,
                     )
                     tiled.add(out.maps.to_svbrdf(0), i, j, weight)
-            maps = tiled.mean("ebr_mitsuba network (tiled)")
-        del full_in
+            total_maps.add_svbrdf(tiled.mean("ebr_mitsuba network (tiled)"))
+        del out, full_in
         release_memory()
-        total_maps.add(upsample_maps(maps, n))
         timings["full_pass"] += time.perf_counter() - t0
         if size == n:
             full_tile, full_starts = tile, starts
