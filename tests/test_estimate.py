@@ -410,7 +410,8 @@ def test_basis_prior_recovers_two_materials_and_fits_the_photos():
     one = refine(start, ENV, targets, RefineConfig(steps=30, basis=1))
     assert one.after["mean"]["rmse"] < one.before["mean"]["rmse"]
     assert np.ptp(one.maps.roughness) < 1e-5 and np.ptp(one.maps.specular[..., 0]) < 1e-5
-    res = refine(SVBRDF(start.normal, start.diffuse, spec, rough), ENV, targets, RefineConfig(steps=30, basis=2))
+    two_start = SVBRDF(start.normal, start.diffuse, spec, rough)
+    res = refine(two_start, ENV, targets, RefineConfig(steps=30, basis=2))
     assert res.after["mean"]["rmse"] <= res.before["mean"]["rmse"]
     lo, hi = res.maps.roughness.min(), res.maps.roughness.max()
     assert hi - lo > 0.2  # two materials stay two

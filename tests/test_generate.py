@@ -535,18 +535,18 @@ def test_docs_describe_every_config_key():
 
 def test_metering_sets_the_exposure_from_the_brightest_shot(tmp_path):
     """[camera].meter: the recorded exposure puts the brightest clean shot's 99th-percentile
-    luminance at the meter level (× the jitter, none here), and the training loader divides it out."""
-    from ebr_mitsuba.colour import LUMINANCE
+    largest-channel value at the meter level (× the jitter, none here), and the training loader
+    divides it out."""
     from ebr_mitsuba.data.renderers import render_clean
     from ebr_mitsuba.data.sample import draw_sample
     from ebr_mitsuba.train.data import load_training_data
 
-    extra = '\n[camera]\nmeter = 0.5\nexposure_ev = [0.0, 0.0]\nread_noise = [0.0, 0.0]\nshot_noise = [0.0, 0.0]\n'
+    extra = ('\n[camera]\nmeter = 0.5\nexposure_ev = [0.0, 0.0]\nread_noise = [0.0, 0.0]\n'
+             'shot_noise = [0.0, 0.0]\n')
     cfg = load_config(write_config(tmp_path, "fast", extra))
     root = tmp_path / "metered"
     generate(cfg, root, workers=1, progress=False)
     from ebr_mitsuba.data.sample import Plan, prepare_maps
-
     from ebr_mitsuba.variant import ensure_variant
 
     plan = Plan(cfg, prepare_maps(cfg, root), ensure_variant())
@@ -555,12 +555,13 @@ def test_metering_sets_the_exposure_from_the_brightest_shot(tmp_path):
         meta = json.loads((root / store.sample_dirname(i) / "sample.json").read_text())
         exposures.append(meta["camera"]["exposure"])
         clean = render_clean(cfg, draw_sample(plan, i))
-        level = max(np.percentile(v.astype(np.float64) @ LUMINANCE, 99.0) for v in clean.shots.values())
+        level = max(np.percentile(v.astype(np.float64).max(axis=-1), 99.0) for v in clean.shots.values())
         assert math.isclose(exposures[-1] * level, 0.5, rel_tol=1e-5)
     assert len(set(exposures)) == COUNT  # one exposure per sample, not the fixed base
     from ebr_mitsuba.data.dataset import GeneratedDataset
 
     td = load_training_data(root)  # the loader's photos × exposure are the stored photos
     item = GeneratedDataset(root)[0]
-    np.testing.assert_allclose(td.photos[0].numpy() * exposures[0], item["photos"].numpy(), rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(td.photos[0].numpy() * exposures[0], item["photos"].numpy(),
+                               rtol=1e-5, atol=1e-7)
     np.testing.assert_allclose(td.gains[0].numpy(), item["white_balance"].numpy())

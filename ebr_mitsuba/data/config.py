@@ -55,9 +55,10 @@ order: × exposure × white-balance gains → + noise → clip to [0, 1] → 8-b
 ``clip``           bool         true            clip photos to [0, 1] (saturation)
 ``quantize``       bool         true            8-bit sRGB PNG photos (needs ``clip``); else float EXR
 ``meter``          float        0.0             auto exposure, as a camera meters: > 0 sets the base
-                                                exposure so that the 99th-percentile luminance of the
-                                                brightest shot lands at this level (then × the
-                                                ``exposure_ev`` jitter; ``exposure`` is ignored);
+                                                exposure so that the 99th percentile of the
+                                                largest channel of the brightest shot lands at this
+                                                level (then × the ``exposure_ev`` jitter;
+                                                ``exposure`` is ignored);
                                                 0: the fixed ``exposure``. The exposure used is recorded
                                                 in ``sample.json`` (as EXIF would)
 =================  ===========  ==============  ==========================================================
@@ -175,7 +176,7 @@ class CameraSection:
     shot_noise: tuple[float, float] = _f((0.0, 0.005), "shot-noise gain range", nonnegative=True)
     clip: bool = _f(True, "clip photos to [0, 1]")
     quantize: bool = _f(True, "8-bit sRGB photos")
-    meter: float = _f(0.0, "auto exposure: level of the brightest shot's 99th-percentile luminance (0: off)",
+    meter: float = _f(0.0, "auto exposure: the brightest shot's 99th-percentile channel value (0: off)",
                       minimum=0.0, maximum=1.0)
 
 

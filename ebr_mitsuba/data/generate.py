@@ -23,7 +23,6 @@ count and any sequence of interrupted and resumed runs. Use ``workers`` = number
 from __future__ import annotations
 
 import dataclasses
-
 import json
 import os
 import time
@@ -126,13 +125,13 @@ METER_PERCENTILE = 99.0
 
 def metered(config: GenerateConfig, draw, shots: dict[str, np.ndarray]):
     """``draw`` with the auto exposure of ``[camera].meter`` (the drawn jitter kept): the base
-    exposure puts the 99th-percentile luminance of the brightest clean shot at ``meter``."""
+    exposure puts the 99th percentile of the brightest clean shot's largest channel at ``meter``
+    (highlight-priority metering: a strongly coloured material clips in no channel before the
+    brightest 1 % of its pixels)."""
     meter = config.camera.meter
     if meter <= 0:
         return draw
-    from ..colour import LUMINANCE
-
-    level = max(float(np.percentile(np.asarray(v, np.float64) @ LUMINANCE, METER_PERCENTILE))
+    level = max(float(np.percentile(np.max(np.asarray(v, np.float64), axis=-1), METER_PERCENTILE))
                 for v in shots.values())
     jitter = draw.camera.exposure / config.camera.exposure
     exposure = float(meter / max(level, 1e-6) * jitter)

@@ -494,7 +494,8 @@ def run_estimate(
         "ensemble": ensemble,
         "render_mode": mode,
         "flash": flash_info,
-        "exposure": {"to_reference": scale, "source": known_source or "none (the reference exposure assumed)"},
+        "exposure": {"to_reference": scale,
+                     "source": known_source or "none (the reference exposure assumed)"},
         "lobes": 0 if final_env is None else final_env.num_lobes,
         "rerender_error": {"network": net_errors, "refined": final_errors if refined else None},
         "refine": None

@@ -166,7 +166,9 @@ class RefineConfig:
         if self.mode not in ("sg", "quadrature"):
             raise InputError(f"--render-mode {self.mode!r}: use sg or quadrature")
         if not (isinstance(self.basis, int) and 0 <= self.basis <= MAX_BASIS):
-            raise InputError(f"--refine-basis {self.basis}: give an integer in [0, {MAX_BASIS}] (0: per-pixel maps)")
+            raise InputError(
+                f"--refine-basis {self.basis}: give an integer in [0, {MAX_BASIS}] (0: per-pixel maps)"
+            )
 
 
 @dataclass

@@ -29,7 +29,8 @@ def model_predictor(bundle, fixed_roughness: float | None = None) -> Callable[[d
     """``predict(item, shot_names) -> SVBRDF`` for a loaded model.
 
     The photos are divided by the sample's recorded exposure (the reference exposure of
-    ``docs/conventions.md``, "Exposure"). Photos finer than the model's grid are area-averaged to the grid and the maps area-resampled
+    ``docs/conventions.md``, "Exposure"). Photos finer than the model's grid are area-averaged to
+    the grid and the maps area-resampled
     back to the data set's resolution (the estimate a grid-sized model makes of that capture)."""
     from .inference import predict
 
@@ -206,5 +207,6 @@ def oracle_predictor(item: dict, names: list[str]) -> SVBRDF:
 
 
 __all__ = [
-    "estimate_predictor", "evaluate", "evaluate_many", "group_means", "material_class", "material_group", "model_predictor", "oracle_predictor",
+    "estimate_predictor", "evaluate", "evaluate_many", "group_means", "material_class", "material_group",
+    "model_predictor", "oracle_predictor",
 ]
