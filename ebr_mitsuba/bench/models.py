@@ -52,11 +52,11 @@ PAPER_ROW = {"normal": 0.0351, "diffuse": 0.0285, "roughness": 0.0718, "specular
 REGENERATE = """\
 export EBR_DATA_DIR=../shared/data EBR_SPLIT_DATA=/tmp/ebr-data/real_test \\
        EBR_TRAIN_DATA=/tmp/ebr-data/real_train
-ebr generate configs/data_real_test.toml --out $EBR_SPLIT_DATA --workers 2
+ebr generate configs/data_real_test.toml --out $EBR_SPLIT_DATA --workers 2    # metered, Mitsuba 256 spp
 ebr generate configs/data_real_train.toml --out $EBR_TRAIN_DATA --workers 2   # for the mean-maps baseline
-EBR_TRAIN_DATA=/tmp/ebr-data/real_train EBR_INIT=ebr_mitsuba/models/ebrenv_small.pt \\
-  ebr train configs/train_real.toml --out /tmp/ebr-runs/real --export ebr_mitsuba/models/ebrenv_small.pt
-EBR_SHIPPED_RUN=/tmp/ebr-runs/real EBR_CANDIDATES="previous=PREVIOUS.pt" ebr bench models  # this page"""
+EBR_INIT=ebr_mitsuba/models/ebrenv_small.pt ebr train configs/train_real.toml --out /tmp/ebr-runs/real
+EBR_SHIPPED_RUN=/tmp/ebr-runs/real EBR_CANDIDATES="NAME=CHECKPOINT;..." EBR_REFINE='{"steps": 100}' \\
+  ebr bench models  # this page"""
 
 
 def unavailable() -> str | None:
