@@ -39,6 +39,7 @@ COMMANDS = (
     "extract-sg",
     "select-exemplars",
     "estimate",
+    "insert",
     "gallery",
     "validate",
     "bench",

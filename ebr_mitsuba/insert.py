@@ -1,0 +1,564 @@
+"""Object insertion: a virtual object standing on an estimated sample, lit by the estimated
+environment, rendered with Mitsuba, and (for a synthetic capture) the same insertion with the
+true maps and the true environment, and the error between the two.
+
+Scene (``docs/conventions.md``, "Geometry and pixel grid"; ``docs/insert.md``)
+===================  ==========================================================================
+part                 what it is
+===================  ==========================================================================
+sample               the plane [-1,1]² at z = 0 with the ``svbrdf`` BSDF showing the maps of
+                     ``ESTIMATE_DIR/maps`` (:func:`ebr_mitsuba.scene.svbrdf_bsdf_dict`)
+lighting             the ``sgenvmap`` emitter with the lobes of ``ESTIMATE_DIR/env.json`` (no
+                     flash: the insertion is seen under the environment alone)
+object               ``sphere`` (radius = width/2), ``cube`` (edge = width) or a mesh file
+                     (``.obj``/``.ply``; its up axis, ``+y`` by default as Wavefront files
+                     usually are, turned to +z), scaled to ``width`` = ``scale`` × the sample
+                     width (2) along its larger horizontal side, centred on ``position`` (x, y)
+                     with its lowest point on the plane; ``none`` renders the plane alone
+camera               the estimate's camera: at ``near_distance(fov)`` above the sample centre
+                     with the photos' horizontal field of view (the frame is exactly the
+                     sample); ``elevation`` < 90° swings it towards −y on the same distance,
+                     looking at the centre (+y stays up in the image)
+integrator           ``path``, ``max_depth`` 8 (object ↔ plane inter-reflections, a mirror seeing
+                     the plane and the sky), emitters hidden from camera rays (background
+                     pixels of an oblique view are black)
+===================  ==========================================================================
+
+The object's materials (:data:`MATERIALS`) are Mitsuba's own BSDFs. The render is split into
+passes of at most :data:`PASS_SPP` samples (each its own seed, derived from ``seed`` as
+:func:`ebr_mitsuba.capture.shot_seed` does) averaged with their sample counts as weights, so
+a progress bar can follow it; the average has the expectation and variance of one render.
+
+Truth (``truth``): a directory of ``ebr capture`` (``capture.json``): the same scene with its
+``maps`` and its environment (``env.json``, or the equirectangular map named in
+``capture.json`` after a SHA-256 check), seen by the estimate's camera (a different field of
+view in the capture is reported as a warning). By default the truth is
+rendered with the same seed as the estimate, so that their sampling noise is correlated and
+mostly cancels in the difference; ``truth_seed`` makes it independent (the truth-vs-truth noise
+floor: ``ebr insert CAPTURE_DIR --truth CAPTURE_DIR --truth-seed 1``). ESTIMATE_DIR may itself
+be a capture directory (its true maps and environment).
+
+Errors in the inputs are :class:`~ebr_mitsuba.errors.InputError` (one line naming the file and
+the fix) raised before anything is rendered or written; the images are written atomically
+together, after every render succeeded (:func:`write_outputs`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+from .geometry import Shot
+from .metrics import rel_rmse, rmse
+from .sgenv import SGEnvironment
+from .svbrdf import SVBRDF
+
+#: Built-in objects; anything else must be a mesh file with one of :data:`MESH_SUFFIXES`.
+OBJECTS = ("sphere", "cube", "none")
+MESH_SUFFIXES = (".obj", ".ply")
+#: Object materials: name → (what it is, Mitsuba BSDF dict).
+MATERIALS: dict[str, tuple[str, dict]] = {
+    "diffuse": ("grey Lambertian, albedo 0.8",
+                {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.8, 0.8, 0.8]}}),
+    "mirror": ("perfect mirror (reflectance 1)",
+               {"type": "conductor", "material": "none"}),
+    "glossy": ("grey rough metal, GGX α 0.1, reflectance 0.9",
+               {"type": "roughconductor", "distribution": "ggx", "alpha": 0.1, "material": "none",
+                "specular_reflectance": {"type": "rgb", "value": [0.9, 0.9, 0.9]}}),
+    "plastic": ("red rough plastic, GGX α 0.1, diffuse (0.6, 0.08, 0.05)",
+                {"type": "roughplastic", "distribution": "ggx", "alpha": 0.1,
+                 "diffuse_reflectance": {"type": "rgb", "value": [0.6, 0.08, 0.05]}}),
+    "glass": ("clear glass, index 1.5",
+              {"type": "dielectric", "int_ior": 1.5, "ext_ior": 1.0}),
+}
+MESH_UP = ("y", "z")
+
+DEFAULT_OBJECT = "sphere"
+DEFAULT_MATERIAL = "diffuse"
+DEFAULT_SPP = 64
+DEFAULT_SCALE = 1.0 / 3.0  # the object's width as a fraction of the sample's width
+DEFAULT_POSITION = (0.0, 0.0)
+DEFAULT_ELEVATION = 90.0
+DEFAULT_SEED = 0
+DEFAULT_MESH_UP = "y"
+DEFAULT_MAX_RES = 512  # the default resolution is the maps' one, at most this
+MAX_DEPTH = 8
+PASS_SPP = 16
+MIN_RES, MAX_RES = 8, 4096
+MAX_SPP = 1 << 16
+MIN_ELEVATION = 10.0
+SAMPLE_WIDTH = 2.0
+CAPTURE_FORMAT = "ebr-capture/1"
+ESTIMATE_FORMAT = "ebr-estimate/1"
+#: Gain of the |estimate − truth| panel of the side-by-side picture.
+DIFF_GAIN = 4.0
+GAP = 4  # white pixels between the panels
+
+
+# -- configuration ----------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class InsertConfig:
+    """What to insert and how to render it (defaults in :mod:`ebr_mitsuba.insert`'s constants).
+
+    ``res`` None renders at the resolution of the estimate's maps (at most
+    :data:`DEFAULT_MAX_RES`); ``truth_seed`` None uses
+    ``seed`` for the truth render too."""
+
+    object: str = DEFAULT_OBJECT
+    material: str = DEFAULT_MATERIAL
+    spp: int = DEFAULT_SPP
+    res: int | None = None
+    scale: float = DEFAULT_SCALE
+    position: tuple[float, float] = DEFAULT_POSITION
+    elevation: float = DEFAULT_ELEVATION
+    seed: int = DEFAULT_SEED
+    truth_seed: int | None = None
+    mesh_up: str = DEFAULT_MESH_UP
+
+    def __post_init__(self):
+        if self.material not in MATERIALS:
+            raise InputError(f"--material {self.material!r}: unknown material; use one of "
+                             f"{', '.join(MATERIALS)}")
+        if self.object not in OBJECTS:
+            path = Path(self.object)
+            if path.suffix.lower() not in MESH_SUFFIXES:
+                raise InputError(f"--object {self.object!r}: not one of {', '.join(OBJECTS)} and not a "
+                                 f"mesh file ({', '.join(MESH_SUFFIXES)}); give a built-in object or a "
+                                 f"Wavefront .obj")
+            if not path.is_file():
+                raise InputError(f"{path}: no such mesh file; give an existing .obj (or .ply) file")
+        if self.mesh_up not in MESH_UP:
+            raise InputError(f"--mesh-up {self.mesh_up!r}: use y (Wavefront's usual up axis) or z")
+        if not (isinstance(self.spp, int) and 1 <= self.spp <= MAX_SPP):
+            raise InputError(f"--spp {self.spp}: give an integer in [1, {MAX_SPP}]")
+        if self.res is not None and not (isinstance(self.res, int) and MIN_RES <= self.res <= MAX_RES):
+            raise InputError(f"--res {self.res}: give an integer in [{MIN_RES}, {MAX_RES}]")
+        if not (math.isfinite(self.scale) and 0 < self.scale <= 1):
+            raise InputError(f"--object-scale {self.scale}: give the object's width as a fraction of "
+                             f"the sample's width, in (0, 1]")
+        x, y = self.position
+        if not (math.isfinite(x) and math.isfinite(y) and abs(x) <= 1 and abs(y) <= 1):
+            raise InputError(f"--position {x},{y}: the object's centre must lie on the sample, "
+                             f"x and y in [-1, 1]")
+        if not (math.isfinite(self.elevation) and MIN_ELEVATION <= self.elevation <= 90):
+            raise InputError(f"--elevation {self.elevation}: give degrees in [{MIN_ELEVATION:g}, 90] "
+                             f"(90: the estimate's camera, straight above)")
+        for name, seed in (("--seed", self.seed), ("--truth-seed", self.truth_seed)):
+            if seed is not None and not (isinstance(seed, int) and 0 <= seed < 2**32):
+                raise InputError(f"{name} {seed}: give an integer in [0, 2^32)")
+
+    @property
+    def width(self) -> float:
+        """The object's width in world units."""
+        return self.scale * SAMPLE_WIDTH
+
+    def to_json(self) -> dict:
+        return {"object": self.object, "material": self.material, "spp": self.spp, "res": self.res,
+                "object_scale": self.scale, "width": self.width, "position": list(self.position),
+                "elevation": self.elevation, "seed": self.seed,
+                "truth_seed": self.seed if self.truth_seed is None else self.truth_seed,
+                **({"mesh_up": self.mesh_up} if self.object not in OBJECTS else {})}
+
+
+# -- the scene's inputs: maps, lighting, camera -------------------------------------------------------
+
+@dataclass(frozen=True)
+class Plate:
+    """What the object is inserted into: the sample's maps, its lighting and the camera's field
+    of view. ``emitter`` builds the Mitsuba emitter dict (a fresh one per scene: a dict's tensors
+    are consumed by one ``mi.load_dict``); ``kind`` is ``estimate`` or ``capture``."""
+
+    source: Path
+    kind: str
+    maps: SVBRDF
+    fov: float
+    emitter: Callable[[], dict] = field(repr=False)
+    env: dict = field(default_factory=dict)
+
+    @property
+    def resolution(self) -> int:
+        return int(self.maps.shape[0])
+
+
+def _read_json(path: Path, what: str) -> dict:
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"{path}: unreadable {what} ({getattr(exc, 'msg', None) or exc}); "
+                         f"regenerate it") from None
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: expected a JSON object ({what}), got a {type(data).__name__}; "
+                         f"regenerate it")
+    return data
+
+
+def _load_maps(directory: Path, fix: str) -> SVBRDF:
+    from .materials import load_material_dir
+
+    if not directory.is_dir():
+        raise InputError(f"{directory}: no maps directory; {fix}")
+    try:
+        return load_material_dir(directory, albedo_colorspace="linear")
+    except InputError as exc:
+        raise InputError(f"{exc}; {fix}") from None
+
+
+def _check_fov(fov, source: Path) -> float:
+    try:
+        fov = float(fov)
+    except (TypeError, ValueError):
+        fov = float("nan")
+    if not (math.isfinite(fov) and 1.0 <= fov <= 150.0):
+        raise InputError(f"{source}: the camera's field of view is {fov!r}; expected degrees in "
+                         f"[1, 150]; regenerate the file")
+    return fov
+
+
+def _sg_plate_env(env: SGEnvironment, path: Path) -> tuple[Callable[[], dict], dict]:
+    from .scene import sg_emitter_dict
+
+    if env.num_lobes == 0:
+        raise InputError(f"{path}: the environment has no lobes (a dark scene); an insertion needs "
+                         f"light: use an estimate from a flash/no-flash pair")
+    return (lambda: sg_emitter_dict(env)), {"kind": "sg", "file": str(path), "lobes": env.num_lobes}
+
+
+def load_estimate(directory) -> Plate:
+    """The plate of ``ebr estimate``'s output directory (``estimate.json``, ``maps/``,
+    ``env.json``), or of an ``ebr capture`` directory (its true maps and environment)."""
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise InputError(f"{directory}: no such estimate directory; give the --out directory of "
+                         f"`ebr estimate`")
+    if not (directory / "estimate.json").is_file():
+        if (directory / "capture.json").is_file():
+            return load_capture(directory)
+        raise InputError(f"{directory}: not an estimate directory (no estimate.json); give the --out "
+                         f"directory of `ebr estimate` (or an `ebr capture` directory)")
+    meta_path = directory / "estimate.json"
+    meta = _read_json(meta_path, "estimate summary")
+    if meta.get("format") != ESTIMATE_FORMAT:
+        raise InputError(f"{meta_path}: 'format' is {meta.get('format')!r}, not \"{ESTIMATE_FORMAT}\"; "
+                         f"give the output of `ebr estimate`")
+    inputs = meta.get("inputs") if isinstance(meta.get("inputs"), dict) else {}
+    fov = _check_fov(inputs.get("fov"), meta_path)
+    env_path = directory / "env.json"
+    if not env_path.is_file():
+        raise InputError(f"{env_path}: missing; this estimate has no lighting (a flash-only or "
+                         f"five-light estimate): run `ebr estimate` with --noflash for one")
+    env = SGEnvironment.load(env_path)
+    maps = _load_maps(directory / "maps", "re-run `ebr estimate` to write the maps")
+    emitter, env_record = _sg_plate_env(env, env_path)
+    return Plate(directory, "estimate", maps, fov, emitter, env_record)
+
+
+def _capture_fov(meta: dict, meta_path: Path) -> float:
+    """Field of view of the capture's fronto-parallel camera (the shot that frames the sample)."""
+    shots = [s for s in meta.get("shots", []) if isinstance(s, dict)]
+    framing = [s for s in shots if s.get("in_sample_grid")]
+    noflash = [s for s in framing if s.get("flash") is None]
+    pick = (noflash or framing or [None])[0]
+    if pick is None:
+        raise InputError(f"{meta_path}: no shot frames the sample (in_sample_grid); give a capture "
+                         f"of the near, near-far, five-light or multi-view setup")
+    return _check_fov(pick.get("fov"), meta_path)
+
+
+def load_capture(directory) -> Plate:
+    """The true plate of an ``ebr capture`` directory: ``maps/``, the environment it was rendered
+    with and the field of view of its camera."""
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise InputError(f"{directory}: no such capture directory; give the --out directory of "
+                         f"`ebr capture`")
+    meta_path = directory / "capture.json"
+    if not meta_path.is_file():
+        raise InputError(f"{directory}: not a capture directory (no capture.json); --truth needs the "
+                         f"--out directory of `ebr capture`")
+    meta = _read_json(meta_path, "capture metadata")
+    if meta.get("format") != CAPTURE_FORMAT:
+        raise InputError(f"{meta_path}: 'format' is {meta.get('format')!r}, not \"{CAPTURE_FORMAT}\"; "
+                         f"give a directory written by `ebr capture`")
+    fov = _capture_fov(meta, meta_path)
+    record = meta.get("env")
+    if not isinstance(record, dict):
+        raise InputError(f"{meta_path}: the capture has no environment (a dark capture); an insertion "
+                         f"needs light: capture with --env")
+    maps = _load_maps(directory / (meta.get("material", {}) or {}).get("maps", "maps"),
+                      "re-run `ebr capture` to write the true maps")
+    if record.get("kind") == "sg":
+        env_path = directory / str(record.get("file", "env.json"))
+        emitter, env_record = _sg_plate_env(SGEnvironment.load(env_path), env_path)
+    elif record.get("kind") == "equirect":
+        emitter, env_record = _equirect_env(record, meta_path)
+    else:
+        raise InputError(f"{meta_path}: unknown environment kind {record.get('kind')!r}; regenerate "
+                         f"the capture")
+    return Plate(directory, "capture", maps, fov, emitter, env_record)
+
+
+def _equirect_env(record: dict, meta_path: Path) -> tuple[Callable[[], dict], dict]:
+    from .sources import file_sha256, parse_env
+
+    path = Path(str(record.get("path", "")))
+    if not path.is_file():
+        raise InputError(f"{meta_path}: the environment map {path} is gone; put it back or "
+                         f"re-run the capture")
+    if record.get("sha256") and file_sha256(path) != record["sha256"]:
+        raise InputError(f"{path}: changed since the capture (SHA-256 differs from capture.json); "
+                         f"restore it or re-run the capture")
+    source = parse_env(str(path))
+    scale = float(record.get("scale", 1.0))
+    return (lambda: source.emitter_dict(scale)), {"kind": "equirect", "file": str(path), "scale": scale}
+
+
+# -- the scene -------------------------------------------------------------------------------------
+
+def camera_shot(fov: float, elevation: float = DEFAULT_ELEVATION) -> Shot:
+    """The insertion camera: the estimate's near camera, swung to ``elevation`` degrees towards −y."""
+    distance = 1.0 / math.tan(math.radians(fov) / 2)  # the frame is exactly [-1,1]² from above
+    if elevation >= 90.0:
+        camera = (0.0, 0.0, distance)
+    else:
+        e = math.radians(elevation)
+        camera = (0.0, -distance * math.cos(e), distance * math.sin(e))
+    return Shot("insert", camera, float(fov), None, 0.0, env=True)
+
+
+def _mesh_dict(cfg: InsertConfig) -> dict:
+    """The mesh of ``cfg.object``, turned z-up, scaled and placed (see the module docstring)."""
+    import mitsuba as mi
+
+    path = Path(cfg.object)
+    kind = path.suffix.lower()[1:]
+    up = (mi.ScalarTransform4f().rotate([1.0, 0.0, 0.0], 90.0) if cfg.mesh_up == "y"
+          else mi.ScalarTransform4f())
+    try:
+        mesh = mi.load_dict({"type": kind, "filename": str(path.resolve()), "to_world": up})
+    except Exception as exc:  # Mitsuba's parser error: keep its reason, on one line
+        reason = " ".join(str(exc).split(": ", 2)[-1].split())
+        raise InputError(f"{path}: Mitsuba could not read the mesh ({reason}); give a valid "
+                         f"Wavefront .obj (or .ply) file") from None
+    if mesh.face_count() == 0:
+        raise InputError(f"{path}: the mesh has no faces; give a .obj with at least one face")
+    box = mesh.bbox()
+    lo, hi = np.array(box.min, dtype=np.float64), np.array(box.max, dtype=np.float64)
+    extent = hi - lo
+    if not np.all(np.isfinite(extent)):
+        raise InputError(f"{path}: the mesh has non-finite vertex positions; fix the file")
+    side = max(extent[0], extent[1]) if max(extent[0], extent[1]) > 0 else extent[2]
+    if not side > 0:
+        raise InputError(f"{path}: the mesh has zero size; give a mesh with some extent")
+    s = float(cfg.width / side)
+    cx, cy = ((lo[:2] + hi[:2]) / 2).tolist()
+    x, y = cfg.position
+    to_world = (mi.ScalarTransform4f().translate([x, y, 0.0])
+                @ mi.ScalarTransform4f().scale([s, s, s])
+                @ mi.ScalarTransform4f().translate([-cx, -cy, -float(lo[2])])
+                @ up)
+    return {"type": kind, "filename": str(path.resolve()), "to_world": to_world,
+            "face_normals": False}
+
+
+def object_dict(cfg: InsertConfig) -> dict | None:
+    """The Mitsuba shape dict of the inserted object with its BSDF (None for ``none``)."""
+    import mitsuba as mi
+
+    if cfg.object == "none":
+        return None
+    half = cfg.width / 2
+    x, y = cfg.position
+    if cfg.object == "sphere":
+        shape = {"type": "sphere", "center": [x, y, half], "radius": half}
+    elif cfg.object == "cube":
+        shape = {"type": "cube", "to_world": mi.ScalarTransform4f().translate([x, y, half])
+                 @ mi.ScalarTransform4f().scale(half)}
+    else:
+        shape = _mesh_dict(cfg)
+    shape["bsdf"] = dict(MATERIALS[cfg.material][1])
+    return shape
+
+
+def scene_dict(plate: Plate, cfg: InsertConfig, res: int, with_object: bool = True,
+               shape: dict | None = None, fov: float | None = None) -> dict:
+    """The insertion scene of ``plate`` (module docstring); ``shape``: a prepared
+    :func:`object_dict` (built from ``cfg`` when None); ``fov``: the camera's field of view
+    (None: the plate's own)."""
+    from .scene import sample_shape_dict, sensor_dict, svbrdf_bsdf_dict
+
+    scene = {
+        "type": "scene",
+        "integrator": {"type": "path", "max_depth": MAX_DEPTH, "hide_emitters": True},
+        "sensor": sensor_dict(camera_shot(plate.fov if fov is None else fov, cfg.elevation), res, 1, 0),
+        "sample": sample_shape_dict(svbrdf_bsdf_dict(plate.maps)),
+        "env": plate.emitter(),
+    }
+    if with_object:
+        shape = object_dict(cfg) if shape is None else shape
+        if shape is not None:
+            scene["object"] = shape
+    return scene
+
+
+def pass_sizes(spp: int) -> list[int]:
+    """``spp`` split into passes of at most :data:`PASS_SPP` samples."""
+    full, rest = divmod(int(spp), PASS_SPP)
+    return [PASS_SPP] * full + ([rest] if rest else [])
+
+
+def render(scene_desc: dict, res: int, spp: int, seed: int, tick: Callable[[int], None] | None = None
+           ) -> np.ndarray:
+    """Render ``scene_desc`` in passes (module docstring); (res, res, 3) float32 radiance.
+    ``tick(n)`` is called after each pass with its sample count."""
+    import mitsuba as mi
+
+    from .capture import shot_seed
+
+    scene = mi.load_dict(scene_desc)
+    acc = np.zeros((res, res, 3), dtype=np.float64)
+    for k, n in enumerate(pass_sizes(spp)):
+        image = np.array(mi.render(scene, spp=n, seed=shot_seed(seed, k)), dtype=np.float32)
+        acc += image.reshape(res, res, -1)[..., :3].astype(np.float64) * n
+        if tick is not None:
+            tick(n)
+    image = (acc / spp).astype(np.float32)
+    if not np.all(np.isfinite(image)):
+        raise RuntimeError("the insertion render has NaN/Inf pixels")
+    return image
+
+
+# -- outputs ---------------------------------------------------------------------------------------
+
+def output_paths(out, truth: bool) -> dict[str, Path]:
+    """The files written for ``--out OUT``: ``insert`` (OUT), with a truth also ``truth``
+    (OUT's stem + ``_truth``, same suffix) and ``compare`` (stem + ``_compare.png``)."""
+    out = Path(out)
+    if out.suffix.lower() not in (".exr", ".png"):
+        raise InputError(f"--out {out}: give an image file name ending in .exr (linear radiance) or "
+                         f".png (sRGB preview)")
+    if out.is_dir():
+        raise InputError(f"--out {out}: is a directory; give an image file name")
+    paths = {"insert": out}
+    if truth:
+        paths["truth"] = out.with_name(f"{out.stem}_truth{out.suffix}")
+        paths["compare"] = out.with_name(f"{out.stem}_compare.png")
+    for p in paths.values():
+        if p.parent.exists() and not p.parent.is_dir():
+            raise InputError(f"--out {out}: {p.parent} is not a directory; choose another --out")
+        if p.is_dir():
+            raise InputError(f"{p}: is a directory; choose another --out")
+    return paths
+
+
+def exposure(image: np.ndarray) -> float:
+    """Preview exposure: 1 / the 99.5th luminance percentile (as ``ebr estimate``'s pictures)."""
+    from .colour import LUMINANCE
+
+    lum = np.asarray(image, np.float64) @ np.asarray(LUMINANCE, np.float64)
+    p = float(np.percentile(lum, 99.5)) if lum.size else 0.0
+    return 1.0 / p if p > 0 and math.isfinite(p) else 1.0
+
+
+def side_by_side(estimate: np.ndarray, truth: np.ndarray, gain: float) -> np.ndarray:
+    """[estimate | truth | |estimate − truth| × :data:`DIFF_GAIN`], each × ``gain``, white gaps."""
+    h = estimate.shape[0]
+    gap = np.ones((h, GAP, 3), np.float32)
+    diff = np.abs(estimate - truth) * DIFF_GAIN
+    panels = [estimate, gap, truth, gap, diff]
+    return np.concatenate([p if p is gap else p * np.float32(gain) for p in panels], axis=1)
+
+
+def write_outputs(paths: dict[str, Path], images: dict[str, np.ndarray], gain: float) -> list[str]:
+    """Write every image under a temporary name, then rename them all: nothing appears unless
+    every write succeeded."""
+    from .fsutil import atomic_path
+    from .imageio import write_exr, write_png
+
+    def write(path: Path, tmp: Path, image: np.ndarray, png_gain: float) -> None:
+        if path.suffix.lower() == ".exr":
+            write_exr(tmp, image)
+        else:
+            write_png(tmp, image * np.float32(png_gain), clip="hue")
+
+    with contextlib.ExitStack() as stack:
+        temps = {k: stack.enter_context(atomic_path(paths[k])) for k in paths}
+        for key in ("insert", "truth"):
+            if key in paths:
+                write(paths[key], temps[key], images[key], gain)
+        if "compare" in paths:
+            write_png(temps["compare"], side_by_side(images["insert"], images["truth"], gain), clip="hue")
+    return [str(p) for p in paths.values()]
+
+
+# -- the job ---------------------------------------------------------------------------------------
+
+def run_insert(estimate_dir, out, cfg: InsertConfig, truth_dir=None, progress: bool = True) -> dict:
+    """Insert ``cfg``'s object into the estimate at ``estimate_dir`` and write ``out`` (plus the
+    truth insertion and the side-by-side picture when ``truth_dir`` is a capture directory).
+    Returns the summary (``--json``). Every input is checked before the first render."""
+    from tqdm import tqdm
+
+    from .variant import describe, ensure_variant
+
+    t0 = time.perf_counter()
+    paths = output_paths(out, truth_dir is not None)
+    ensure_variant()
+    plate = load_estimate(estimate_dir)
+    truth = load_capture(truth_dir) if truth_dir is not None else None
+    res = cfg.res or min(plate.resolution, DEFAULT_MAX_RES)
+    shape = object_dict(cfg)  # loads (and checks) a mesh file once
+    renders = [("insert", plate, cfg.seed)]
+    if truth is not None:
+        renders.append(("truth", truth, cfg.seed if cfg.truth_seed is None else cfg.truth_seed))
+
+    images, seconds = {}, {}
+    bar = tqdm(total=cfg.spp * len(renders), desc="insert", unit="spp", disable=None if progress else True,
+               leave=False, dynamic_ncols=True)
+    try:
+        for key, p, seed in renders:
+            bar.set_postfix_str(key)
+            t = time.perf_counter()
+            desc = scene_dict(p, cfg, res, shape=dict(shape) if shape else None, fov=plate.fov)
+            images[key] = render(desc, res, cfg.spp, seed, tick=bar.update)
+            seconds[key] = round(time.perf_counter() - t, 3)
+    finally:
+        bar.close()
+    gain = exposure(images.get("truth", images["insert"]))
+    files = write_outputs(paths, images, gain)
+    summary = {
+        "out": str(paths["insert"]),
+        "files": files,
+        "estimate": {"path": str(plate.source), "kind": plate.kind, "env": plate.env,
+                     "maps": list(plate.maps.shape)},
+        **cfg.to_json(),
+        "resolution": [res, res],
+        "fov": plate.fov,
+        "camera": list(camera_shot(plate.fov, cfg.elevation).camera),
+        "integrator": {"type": "path", "max_depth": MAX_DEPTH, "hide_emitters": True},
+        "preview_exposure": gain,
+        "render_seconds": seconds,
+        "renderer": describe(),
+    }
+    if truth is not None:
+        summary["truth"] = {"path": str(truth.source), "env": truth.env, "maps": list(truth.maps.shape),
+                            "fov": truth.fov}
+        if abs(truth.fov - plate.fov) > 1e-3:
+            summary["warnings"] = [f"the capture's field of view is {truth.fov:g} degrees, the estimate's "
+                                   f"{plate.fov:g}: both are rendered with the estimate's camera"]
+        summary["rmse"] = rmse(images["insert"], images["truth"])
+        summary["rel_rmse"] = rel_rmse(images["insert"], images["truth"])
+    summary["seconds"] = round(time.perf_counter() - t0, 3)
+    return summary
+
+
+__all__ = ["InsertConfig", "Plate", "MATERIALS", "OBJECTS", "camera_shot", "load_capture", "load_estimate",
+           "object_dict", "output_paths", "render", "run_insert", "scene_dict", "side_by_side"]
