@@ -213,3 +213,19 @@ def test_layer_norm_as_gemvs_equals_layer_norm(channels):
     x = torch.randn(2, 9, 7, channels) * 3 + torch.randn(channels) * 4
     want = torch.nn.functional.layer_norm(x, (channels,), eps=1e-6)
     torch.testing.assert_close(_layer_norm_cl(x, 1e-6), want, rtol=1e-5, atol=2e-6)
+
+
+def test_in_place_transforms_are_bit_identical_without_grad():
+    from ebr_mitsuba.nets.transforms import NORMAL_Z_MIN, signed_log, unit_normal
+
+    x = torch.randn(2, 3, 7, 5) * 3
+    with torch.no_grad():
+        torch.testing.assert_close(signed_log(x), torch.sign(x) * torch.log1p(x.abs() / 0.01), rtol=0, atol=0)
+        z = torch.nn.functional.softplus(x[:, 2:3]) + NORMAL_Z_MIN
+        n = torch.cat([x[:, 0:2], z], dim=1)
+        want = n / torch.sqrt((n * n).sum(dim=1, keepdim=True))
+        torch.testing.assert_close(unit_normal(x), want, rtol=0, atol=0)
+    xg = x.clone().requires_grad_(True)
+    torch.testing.assert_close(signed_log(xg), torch.sign(x) * torch.log1p(x.abs() / 0.01), rtol=0, atol=0)
+    signed_log(xg).sum().backward()
+    assert torch.isfinite(xg.grad).all()
