@@ -11,6 +11,8 @@ the pass repeated; after 12 widenings the most energetic ``budget`` lobes are ke
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..colour import LUMINANCE
@@ -30,14 +32,13 @@ def _merge_pass(axis, sharp, amp, angle, ratio):
     energy = np.maximum(amp @ LUMINANCE, 0.0) * integ
     order = np.argsort(-energy, kind="stable")
     groups: list[list[int]] = []
+    lams = [float(v) for v in sharp]  # Python floats: the scalar loop below runs ~10⁵ times
     for i in order:
         for g in groups:
             j = g[0]
-            lam_max = max(sharp[i], sharp[j])
-            cos = float(np.clip(axis[i] @ axis[j], -1.0, 1.0))
-            if np.arccos(cos) < angle / np.sqrt(lam_max) and max(sharp[i], sharp[j]) < ratio * min(
-                sharp[i], sharp[j]
-            ):
+            lam_max = max(lams[i], lams[j])
+            cos = min(max(float(axis[i] @ axis[j]), -1.0), 1.0)
+            if math.acos(cos) < angle / math.sqrt(lam_max) and lam_max < ratio * min(lams[i], lams[j]):
                 g.append(i)
                 break
         else:
