@@ -342,7 +342,7 @@ def test_one_step_lowers_the_mair_loss():
 
 def test_presets_and_parameter_counts():
     assert set(MAIR_SIZE_PRESETS) == {"tiny", "small", "paper"}
-    # the counts quoted in docs/mair.md and the mair_config docstring (`python -m ebr_mitsuba.nets.mair`)
+    # quoted in docs/mair.md and the mair_config docstring (`python -m ebr_mitsuba.nets.mair_params`)
     assert stage_parameter_counts(MAIRConfig(size="tiny"))["total"] == 19134
     assert stage_parameter_counts(MAIRConfig(size="tiny", fusion="mean"))["total"] == 18582
     assert stage_parameter_counts(MAIRConfig(size="small"))["total"] == 243490

@@ -9,9 +9,12 @@ module             contents
 ``ebrenv``         :class:`LightingNet` and the :class:`Cascade` (diffuse → specular → refinement)
 ``dualloss``       :class:`DualLossNet` — five-light 3-D-conv + U-Net estimator
 ``mair``           MAIR multi-view stages (:class:`NormalNet`, :class:`SVSGNet`, :class:`SpecNet`,
-                   :class:`MVANet`, :class:`RefineNet`) and :class:`MAIRModel`; view geometry
+                   :class:`RefineNet`) and :class:`MAIRModel`
+``mair_fusion``    :class:`MVANet` — attention (or mean-pool) fusion across the views
+``mair_views``     per-pixel view directions and in-frame weights of the 3×3 capture
 ``mair_config``    :class:`MAIRConfig`, :class:`MAIRSize`, :class:`UNetSize`, ``MAIR_SIZE_PRESETS``
 ``mair_lighting``  :class:`PixelSGLighting` (per-pixel SGs with visibility), hemisphere directions
+``mair_params``    ``python -m ebr_mitsuba.nets.mair_params``: parameter counts of the MAIR presets
 ``losses``         parameter L1, rendering loss and its view/light sampler, MAIR losses
 ``torch_brdf``     torch mirror of :mod:`ebr_mitsuba.brdf` and point-light renderers
 ``drwrap``         the Dr.Jit fast renderer called from torch through ``dr.wrap`` (point light + SGs,

@@ -31,9 +31,11 @@ the lighting unchanged. ``MAIRConfig(fusion="mean")`` is the ablation without cr
 attention (per-view MLP blocks, then the weighted mean). A centre-view-only model is the same
 model fed N = 1 view.
 
-Sizes: :mod:`.mair_config` (presets ``tiny``, ``small``, ``paper``; ``python -m
-ebr_mitsuba.nets.mair`` prints their parameter counts). Losses are not computed here (MAIR's
-g1–g5 are in :mod:`.losses`; see ``docs/mair.md`` for which output feeds which loss).
+Files: view geometry and weights in :mod:`.mair_views`, MVANet in :mod:`.mair_fusion`, the
+per-pixel SG lighting type in :mod:`.mair_lighting`, sizes in :mod:`.mair_config` (presets
+``tiny``, ``small``, ``paper``; ``python -m ebr_mitsuba.nets.mair_params`` prints their parameter counts).
+Losses are not computed here (MAIR's g1–g5 are in :mod:`.losses`; see ``docs/mair.md`` for which
+output feeds which loss).
 """
 
 from __future__ import annotations
@@ -41,92 +43,30 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
 
 from ..errors import InputError
-from ..geometry import Shot, pixel_positions, setup_shots, view_directions
-from .mair_config import FUSIONS, MAIR_SIZE_PRESETS, MAIRConfig, UNetSize
+from .mair_config import MAIRConfig, UNetSize
+from .mair_fusion import AttentionBlock, AttentionPool, MLPBlock, MVANet, MVAOutput, mlp_layers
 from .mair_lighting import PixelSGLighting
+from .mair_views import (
+    check_inputs,
+    in_frame_weights,
+    multiview_shots,
+    normalised_weights,
+    view_direction_maps,
+)
 from .maps import Maps
 from .nafnet import NAFBlock, NAFNet, NAFNetSize, parameter_count
 from .transforms import LOG_EPS, log_input, soft_clamp_log, unit_interval, unit_normal
 
-WEIGHT_FLOOR = 1e-6  # w is clamped to this: a pixel no view saw falls back to uniform weights
-
-
-# ------------------------------------------------------------------------------------ geometry
-
-def multiview_shots() -> list[Shot]:
-    """The 9 shots of ``--setup multi-view`` (row-major over the 3×3 grid, ``view{a}{b}_flash``)."""
-    return setup_shots("multi-view")
-
-
-def view_direction_maps(height: int, width: int, shots: list[Shot] | None = None) -> torch.Tensor:
-    """Per-pixel unit directions from the sample-grid points to each camera, ``(N, 3, H, W)`` float32.
-
-    ``shots`` defaults to :func:`multiview_shots`; direction ``v = normalise(camera − p_ij)``
-    (:func:`ebr_mitsuba.geometry.view_directions`), world frame, ``v_z > 0``.
-    """
-    shots = multiview_shots() if shots is None else shots
-    dirs = np.stack([view_directions(height, width, s.camera) for s in shots])  # (N, H, W, 3)
-    return torch.from_numpy(dirs.astype(np.float32)).permute(0, 3, 1, 2).contiguous()
-
-
-def in_frame_weights(height: int, width: int, shots: list[Shot] | None = None) -> torch.Tensor:
-    """1 where the sample-grid point ``p_ij`` lies inside shot k's frame, else 0: ``(N, 1, H, W)``.
-
-    The per-view weights w of rectified camera images (an oblique view does not see every corner of
-    the sample). Pinhole camera at ``shot.camera`` looking at ``shot.target`` with ``shot.up``,
-    horizontal field of view ``shot.fov``; texture-space renders see every point (use ones).
-    """
-    shots = multiview_shots() if shots is None else shots
-    p = pixel_positions(height, width)
-    out = []
-    for s in shots:
-        c = np.asarray(s.camera, np.float64)
-        f = np.asarray(s.target, np.float64) - c
-        f /= np.linalg.norm(f)
-        r = np.cross(f, np.asarray(s.up, np.float64))
-        r /= np.linalg.norm(r)
-        u = np.cross(r, f)
-        d = p - c
-        depth = d @ f
-        half_x = math.tan(math.radians(s.fov) / 2)
-        half_y = half_x * height / width
-        inside = (depth > 0) & (np.abs(d @ r) <= half_x * depth) & (np.abs(d @ u) <= half_y * depth)
-        out.append(inside.astype(np.float32))
-    return torch.from_numpy(np.stack(out))[:, None]
-
-
-def _check_inputs(views: torch.Tensor, directions: torch.Tensor, weights: torch.Tensor | None):
-    """Validate and broadcast: views (B,N,3,H,W); directions and weights with or without B."""
-    if views.ndim != 5 or views.shape[2] != 3:
-        raise InputError(f"MAIR: views have shape {tuple(views.shape)}; expected (B, N, 3, H, W)")
-    b, n, _, h, w = views.shape
-
-    def broadcast(name, x, channels):
-        if x.ndim == 4:
-            x = x[None]
-        if x.ndim != 5 or tuple(x.shape[1:]) != (n, channels, h, w) or x.shape[0] not in (1, b):
-            raise InputError(f"MAIR: {name} have shape {tuple(x.shape)}; expected ({b}, {n}, {channels}, "
-                             f"{h}, {w}) or ({n}, {channels}, {h}, {w})")
-        return x.to(views.dtype).expand(b, n, channels, h, w)
-
-    directions = broadcast("directions", directions, 3)
-    weights = None if weights is None else broadcast("weights", weights, 1)
-    return directions, weights
-
-
-def normalised_weights(weights: torch.Tensor | None, like: torch.Tensor) -> torch.Tensor:
-    """``p_k = w_k / Σ_k w_k`` over the views (dim 1), ``(B, N, 1, H, W)``; uniform when None."""
-    b, n, _, h, w = like.shape
-    if weights is None:
-        return like.new_full((b, n, 1, h, w), 1.0 / n)
-    w_eff = weights.clamp_min(WEIGHT_FLOOR)
-    return w_eff / w_eff.sum(dim=1, keepdim=True)
+__all__ = [
+    "ViewEncoder", "NormalNet", "SVSGNet", "SpecNet", "RefineNet", "MAIRModel", "MAIROutput",
+    "MVANet", "MVAOutput", "AttentionBlock", "AttentionPool", "MLPBlock", "PixelSGLighting",
+    "view_direction_maps", "in_frame_weights", "multiview_shots", "stage_parameter_counts",
+]
 
 
 # ------------------------------------------------------------------------------- image stages
@@ -227,15 +167,6 @@ class SVSGNet(nn.Module):
 
 # -------------------------------------------------------------------------- per-pixel stages
 
-def _mlp(sizes: list[int]) -> nn.Sequential:
-    layers: list[nn.Module] = []
-    for i, (a, b) in enumerate(zip(sizes[:-1], sizes[1:])):
-        layers.append(nn.Linear(a, b))
-        if i < len(sizes) - 2:
-            layers.append(nn.GELU())
-    return nn.Sequential(*layers)
-
-
 SPEC_INPUTS = 18  # ξ 3, log λ 1, μ 1, log η 3, v 3, n 3, n·ξ, n·v, n·h, v·h
 
 
@@ -260,7 +191,7 @@ class SpecNet(nn.Module):
     def __init__(self, hidden: int = 32, layers: int = 2, features: int = 16, log_eps: float = LOG_EPS):
         super().__init__()
         self.log_eps = log_eps
-        self.mlp = _mlp([SPEC_INPUTS] + [hidden] * layers + [features])
+        self.mlp = mlp_layers([SPEC_INPUTS] + [hidden] * layers + [features])
 
     def forward(self, lighting: PixelSGLighting, directions: torch.Tensor,
                 normal: torch.Tensor) -> torch.Tensor:
@@ -282,139 +213,6 @@ class SpecNet(nn.Module):
         feats += [dot(nrm, xi), dot(nrm, v), dot(nrm, half), dot(v, half)]
         out = self.mlp(torch.cat(feats, dim=-1)).sum(dim=4)  # (B, N, H, W, F_s)
         return out.permute(0, 1, 4, 2, 3)
-
-
-class AttentionBlock(nn.Module):
-    """Pre-LayerNorm transformer block across the views of each pixel: tokens ``(M, N, D)``.
-
-    ``x + β·proj(softmax(q kᵀ/√d + log w) v)``, then ``x + γ·MLP(LN(x))``; the log-weight bias
-    on the keys makes a view of weight 0 invisible and uniform weights neutral; β, γ start at 0.
-    """
-
-    def __init__(self, dim: int, heads: int, mlp: int):
-        super().__init__()
-        self.heads = heads
-        self.norm1 = nn.LayerNorm(dim)
-        self.qkv = nn.Linear(dim, 3 * dim)
-        self.proj = nn.Linear(dim, dim)
-        self.norm2 = nn.LayerNorm(dim)
-        self.mlp = _mlp([dim, mlp, dim])
-        self.beta = nn.Parameter(torch.zeros(dim))
-        self.gamma = nn.Parameter(torch.zeros(dim))
-
-    def forward(self, x: torch.Tensor, log_w: torch.Tensor) -> torch.Tensor:
-        m, n, d = x.shape
-        q, k, v = self.qkv(self.norm1(x)).reshape(m, n, 3, self.heads, d // self.heads).permute(2, 0, 3, 1, 4)
-        logits = q @ k.transpose(-1, -2) * (d // self.heads) ** -0.5 + log_w[:, None, None, :]
-        o = (torch.softmax(logits, dim=-1) @ v).transpose(1, 2).reshape(m, n, d)
-        x = x + self.beta * self.proj(o)
-        return x + self.gamma * self.mlp(self.norm2(x))
-
-
-class MLPBlock(nn.Module):
-    """``x + γ·MLP(LN(x))`` per token (no exchange between views): the mean-pooling ablation."""
-
-    def __init__(self, dim: int, mlp: int):
-        super().__init__()
-        self.norm = nn.LayerNorm(dim)
-        self.mlp = _mlp([dim, mlp, dim])
-        self.gamma = nn.Parameter(torch.zeros(dim))
-
-    def forward(self, x: torch.Tensor, log_w: torch.Tensor) -> torch.Tensor:
-        return x + self.gamma * self.mlp(self.norm(x))
-
-
-class AttentionPool(nn.Module):
-    """A learned query per head attends over the N view tokens: ``(M, N, D) → (M, D)``."""
-
-    def __init__(self, dim: int, heads: int):
-        super().__init__()
-        self.heads = heads
-        self.query = nn.Parameter(torch.randn(heads, dim // heads) * (dim // heads) ** -0.5)
-        self.norm = nn.LayerNorm(dim)
-        self.kv = nn.Linear(dim, 2 * dim)
-        self.proj = nn.Linear(dim, dim)
-
-    def forward(self, x: torch.Tensor, log_w: torch.Tensor) -> torch.Tensor:
-        m, n, d = x.shape
-        k, v = self.kv(self.norm(x)).reshape(m, n, 2, self.heads, d // self.heads).unbind(dim=2)
-        logits = torch.einsum("hc,mnhc->mhn", self.query, k) * (d // self.heads) ** -0.5 + log_w[:, None]
-        pooled = torch.einsum("mhn,mnhc->mhc", torch.softmax(logits, dim=-1), v)
-        return self.proj(pooled.reshape(m, d))
-
-
-@dataclass
-class MVAOutput:
-    """What :class:`MVANet` returns: ``per_view`` (B, N, D, H, W) tokens after the blocks (permuted
-    with the views); ``pooled`` (B, D, H, W) and ``fused`` (B, F_b, H, W), invariant to their order."""
-
-    per_view: torch.Tensor
-    pooled: torch.Tensor
-    fused: torch.Tensor
-
-
-class MVANet(nn.Module):
-    """Multi-view attention fusion of per-view, per-pixel tokens.
-
-    ===========  =================  =========================================================
-    argument     shape              meaning
-    ===========  =================  =========================================================
-    tokens       (B, N, C, H, W)    per-view features of each pixel (in :class:`MAIRModel`:
-                                    log view 3, SpecNet features F_s, v 3, n 3)
-    weights      (B, N, 1, H, W)    per-view weights w ≥ 0, or None (uniform)
-    → output     MVAOutput          per-view tokens, pooled and fused features
-    ===========  =================  =========================================================
-
-    ``Linear(C → D)``, ``depth`` blocks, a pooling over the views, ``LN → MLP → F_b``. With
-    ``fusion="attention"`` the blocks are :class:`AttentionBlock` (views attend to each other) and
-    the pooling an :class:`AttentionPool`, both with ``log w`` on the keys; with ``"mean"`` the
-    blocks are :class:`MLPBlock` and the pooling the weighted mean ``Σ w_k x_k / Σ w_k`` (the plain
-    mean for uniform w).
-
-    ===============  =====  ================================
-    parameter        type   meaning
-    ===============  =====  ================================
-    ``in_features``  int    C
-    ``dim``          int    D (divisible by ``heads``)
-    ``heads``        int    attention heads
-    ``depth``        int    blocks
-    ``mlp``          int    MLP hidden width
-    ``out_features`` int    F_b
-    ``fusion``       str    ``attention`` or ``mean``
-    ===============  =====  ================================
-    """
-
-    def __init__(self, in_features: int, dim: int = 32, heads: int = 4, depth: int = 2, mlp: int = 64,
-                 out_features: int = 16, fusion: str = "attention"):
-        super().__init__()
-        if fusion not in FUSIONS:
-            raise InputError(f"MVANet: fusion must be one of {', '.join(FUSIONS)}, got {fusion!r}")
-        self.in_features, self.fusion = in_features, fusion
-        self.embed = nn.Linear(in_features, dim)
-        attention = fusion == "attention"
-        self.blocks = nn.ModuleList([AttentionBlock(dim, heads, mlp) if attention else MLPBlock(dim, mlp)
-                                     for _ in range(depth)])
-        self.pool = AttentionPool(dim, heads) if attention else None
-        self.head = nn.Sequential(nn.LayerNorm(dim), _mlp([dim, mlp, out_features]))
-
-    def forward(self, tokens: torch.Tensor, weights: torch.Tensor | None = None) -> MVAOutput:
-        if tokens.ndim != 5 or tokens.shape[2] != self.in_features:
-            raise InputError(f"MVANet: tokens have shape {tuple(tokens.shape)}; expected "
-                             f"(B, N, {self.in_features}, H, W)")
-        b, n, c, h, w = tokens.shape
-        p = normalised_weights(weights, tokens).permute(0, 3, 4, 1, 2).reshape(b * h * w, n)
-        x = self.embed(tokens.permute(0, 3, 4, 1, 2).reshape(b * h * w, n, c))
-        log_w = torch.log(p)
-        for block in self.blocks:
-            x = block(x, log_w)
-        pooled = self.pool(x, log_w) if self.pool is not None else (p[..., None] * x).sum(dim=1)
-        fused = self.head(pooled)
-
-        def image(t):
-            return t.reshape(b, h, w, -1).permute(0, 3, 1, 2)
-
-        per_view = x.reshape(b, h, w, n, -1).permute(0, 3, 4, 1, 2)
-        return MVAOutput(per_view, image(pooled), image(fused))
 
 
 class _ConvUnit(nn.Sequential):
@@ -535,7 +333,7 @@ class MAIRModel(nn.Module):
 
     def forward(self, views: torch.Tensor, directions: torch.Tensor,
                 weights: torch.Tensor | None = None) -> MAIROutput:
-        directions, weights = _check_inputs(views, directions, weights)
+        directions, weights = check_inputs(views, directions, weights)
         b, n, _, h, w = views.shape
         normal = self.normal_net(views, directions, weights)
         lighting = self.lighting_net(views, directions, normal, weights)
@@ -555,15 +353,3 @@ def stage_parameter_counts(config: MAIRConfig) -> dict[str, int]:
     counts = {name: parameter_count(getattr(model, name)) for name in names}
     counts["total"] = parameter_count(model)
     return counts
-
-
-def main() -> None:
-    """``python -m ebr_mitsuba.nets.mair``: parameter counts of every preset and fusion (S_D = 3)."""
-    for preset in MAIR_SIZE_PRESETS:
-        for fusion in FUSIONS:
-            counts = stage_parameter_counts(MAIRConfig(size=preset, fusion=fusion))
-            print(f"{preset:6s} {fusion:9s} " + "  ".join(f"{k}={v}" for k, v in counts.items()))
-
-
-if __name__ == "__main__":
-    main()

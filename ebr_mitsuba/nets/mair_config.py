@@ -11,7 +11,7 @@ preset      what for                                                        para
 ``paper``   a GPU; stage sizes like MAIR's (CVPR 2023) networks             48 693 698
 ==========  ==============================================================  ======================
 
-\\* with ``fusion="attention"``, measured by ``python -m ebr_mitsuba.nets.mair``, which prints the
+\\* with ``fusion="attention"``, measured by ``python -m ebr_mitsuba.nets.mair_params``, which prints the
 counts per stage and for the ``mean`` fusion too (``docs/mair.md``).
 
 :class:`MAIRConfig` holds the options that are not sizes: the number of SGs per pixel, the fusion
