@@ -427,6 +427,7 @@ def test_bench_models_page(tiny, tiny_model, tmp_path, monkeypatch):
         monkeypatch.delenv(name, raising=False)
     assert "EBR_SPLIT_DATA" in models.unavailable()
     monkeypatch.setenv("EBR_REFINE", '{"steps": 4}')
+    monkeypatch.setitem(models.CAPTURE_CHECK, "res", 64)  # the capture check, small
     run_dir = tmp_path / "run"
     run_dir.mkdir()
     shutil.copy(tiny_model.parent / "log.csv", run_dir / "log.csv")
@@ -448,6 +449,9 @@ def test_bench_models_page(tiny, tiny_model, tmp_path, monkeypatch):
     verdict = json.loads((tmp_path / "docs" / "models.json").read_text())["refinement_verdict"]
     assert verdict["n"] == 2 and len(verdict["cases"]) == 2 and 0 <= verdict["both"] <= 1
     assert f"both in {100 * verdict['both']:.0f} %" in text
+    check = json.loads((tmp_path / "docs" / "models.json").read_text())["capture_check"]
+    assert 0 < check["flash_rel_rmse"] and check["flash"]["source"] == "capture.json"
+    assert f"off by {100 * check['flash_rel_rmse']:.1f} % relative RMSE" in text
     for png in ("models_loss.png", "models_maps.png", "models_classes.png"):
         assert (tmp_path / "docs" / png).is_file()
     monkeypatch.setenv("EBR_CANDIDATES", "broken")

@@ -212,6 +212,45 @@ def refinement_verdict(before: list[dict], after: list[dict]) -> dict:
     return out
 
 
+CAPTURE_CHECK = {"material": "procedural:tiles:1", "env": "procedural:3", "setup": "near", "res": 256}
+
+
+def capture_check(work: Path) -> dict:
+    """Issue 15's first-contact check: ``ebr capture`` of :data:`CAPTURE_CHECK` (Mitsuba, its
+    default spp), then ``ebr estimate`` on it with the shipped model; the relative RMSE of the
+    network's re-render of each shot (before any refinement)."""
+    from ..capture import capture
+    from ..estimate.pipeline import EstimateConfig, run_estimate
+
+    cap = work / "capture"
+    capture(CAPTURE_CHECK["material"], CAPTURE_CHECK["env"], CAPTURE_CHECK["setup"], cap,
+            res=CAPTURE_CHECK["res"], progress=False)
+    summary = run_estimate(EstimateConfig(flash=str(cap / "flash.exr"), noflash=str(cap / "noflash.exr"),
+                                          out=str(work / "estimate")))
+    net = summary["rerender_error"]["network"]
+    return {"flash_rel_rmse": net["flash"]["rel_rmse"], "noflash_rel_rmse": net["noflash"]["rel_rmse"],
+            "exposure": summary["exposure"], "flash": summary["flash"]["flash"]}
+
+
+def _capture_lines(check: dict | None) -> list[str]:
+    if not check:
+        return []
+    c = CAPTURE_CHECK
+    ok = check["flash_rel_rmse"] <= 0.25
+    return [
+        "## A capture of `ebr capture`, estimated",
+        "",
+        f"`ebr capture --material {c['material']} --env {c['env']} --setup {c['setup']} --res {c['res']}`, "
+        f"then `ebr estimate` on it with the shipped model: the network's re-render of the flash shot is off "
+        f"by {100 * check['flash_rel_rmse']:.1f} % relative RMSE (acceptance: within 25 % — "
+        f"{'yes' if ok else 'no'}), "
+        f"the no-flash shot by {100 * check['noflash_rel_rmse']:.1f} %. Flash intensity "
+        f"{check['flash']['intensity']:g} W/sr from {check['flash']['source']}; exposure factor to the "
+        f"reference {check['exposure']['to_reference']:g} ({check['exposure']['source']}).",
+        "",
+    ]
+
+
 def _verdict_lines(verdict: dict | None) -> list[str]:
     if not verdict:
         return ["(Refinement not measured: `EBR_REFINE` has 0 steps.)", ""]
@@ -351,6 +390,11 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
                                      many["estimate + refinement"]["per_sample"])
         verdict["options"] = refine_opts
     seconds = time.perf_counter() - t0
+    import tempfile
+
+    log("[bench models] capture check")
+    with tempfile.TemporaryDirectory(prefix="ebr-bench-capture-") as tmp:
+        check = capture_check(Path(tmp))
 
     out_dir.mkdir(parents=True, exist_ok=True)
     _sheet([_small(t) for t in truth_maps], records, out_dir / "models_maps.png")
@@ -359,11 +403,11 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
     summary = training_summary(Path(run_dir)) if run_dir else None
     if summary:
         _plot_loss(summary, out_dir / "models_loss.png")
-    page = _page(results, ds, n, seconds, quick, summary, run_dir, verdict)
+    page = _page(results, ds, n, seconds, quick, summary, run_dir, verdict, check)
     atomic_write_text(out_dir / "models.md", page)
     atomic_write_text(out_dir / "models.json", json.dumps(
         {**{k: {kk: vv for kk, vv in v.items() if kk != "per_sample"} for k, v in results.items()},
-         "refinement_verdict": verdict}, indent=1, default=float) + "\n")
+         "refinement_verdict": verdict, "capture_check": check}, indent=1, default=float) + "\n")
     return out_dir / "models.md"
 
 
@@ -430,7 +474,7 @@ def _model_card(summary: dict | None, run_dir: str | None) -> list[str]:
 
 
 def _page(results: dict, ds, n: int, seconds: float, quick: bool, summary: dict | None = None,
-          run_dir: str | None = None, verdict: dict | None = None) -> str:
+          run_dir: str | None = None, verdict: dict | None = None, check: dict | None = None) -> str:
     from ..data.split import load_split
 
     split = load_split()
@@ -490,6 +534,7 @@ def _page(results: dict, ds, n: int, seconds: float, quick: bool, summary: dict 
         "## Test-time refinement",
         "",
         *_verdict_lines(verdict),
+        *_capture_lines(check),
         "## By material class (mean per-map RMSE / re-render RMSE)",
         "",
         chead, crule, *crows,
