@@ -452,7 +452,7 @@ def test_bench_models_page(tiny, tiny_model, tmp_path, monkeypatch):
     check = json.loads((tmp_path / "docs" / "models.json").read_text())["capture_check"]
     assert 0 < check["flash_rel_rmse"] and check["flash"]["source"] == "capture.json"
     assert f"off by {100 * check['flash_rel_rmse']:.1f} % relative RMSE" in text
-    for png in ("models_loss.png", "models_maps.png", "models_classes.png"):
+    for png in ("models_loss.png", "models_maps.jpg", "models_classes.png"):
         assert (tmp_path / "docs" / png).is_file()
     monkeypatch.setenv("EBR_CANDIDATES", "broken")
     with pytest.raises(InputError, match="EBR_CANDIDATES"):

@@ -1,6 +1,7 @@
 """``ebr bench models``: the shipped model, its training summary, and every model and baseline on
 the fixed test split (``docs/conventions.md``, "Metrics"); writes ``models.md`` with
-``models_maps.png`` (contact sheet), ``models_classes.png`` and ``models_loss.png``.
+``models_maps.jpg`` (contact sheet, JPEG: 36 rows of maps are 8 MB as PNG), ``models_classes.png``
+and ``models_loss.png``.
 
 The protocol is EBREnv's Table 1, near field: test captures of the real material sets and HDR maps
 of ``scenes/test_split.toml`` (``configs/data_real_test.toml``: Mitsuba, 256 spp, 256²), per-map
@@ -44,6 +45,7 @@ DEFAULT_OUT = "docs"
 QUICK_LIMIT = 2
 DEFAULT_REFINE = {"steps": 100}  # the refinement judged on the test split (EBR_REFINE overrides)
 THUMB = 96  # contact-sheet thumbnail size
+SHEET_QUALITY = 85  # JPEG quality of the contact sheet
 MAP_NAMES = ("normal", "diffuse", "roughness", "specular")
 COLUMNS = (*MAP_NAMES, "mean")
 # EBREnv (Table 1, near field; their test set is MatSynth renders, not this split).
@@ -282,7 +284,8 @@ def _row(name: str, m: dict, extra: str = "") -> str:
 
 def _sheet(truths, rows: dict[str, list], path: Path) -> None:
     """Contact sheet: per test sample, the truth's maps then each predictor's maps."""
-    from ..imageio import linear_to_srgb, write_png
+    from ..fsutil import atomic_path
+    from ..imageio import linear_to_srgb
 
     def tiles(m):
         rough = np.repeat(m.roughness[..., None], 3, axis=2)
@@ -298,7 +301,12 @@ def _sheet(truths, rows: dict[str, list], path: Path) -> None:
         lines.append(np.concatenate([np.pad(p, ((0, 0), (0, gap), (0, 0)), constant_values=1) for p in parts],
                                     axis=1))
         lines.append(np.ones((gap, lines[-1].shape[1], 3)))
-    write_png(path, np.concatenate(lines, axis=0), encode="linear")
+    from PIL import Image
+
+    sheet = np.concatenate(lines, axis=0)
+    code = np.round(np.clip(sheet, 0, 1) * 255).astype(np.uint8)  # the tiles are display values already
+    with atomic_path(path) as tmp:
+        Image.fromarray(code).save(tmp, format="JPEG", quality=SHEET_QUALITY)
 
 
 def _plot_classes(results: dict[str, dict], path: Path) -> None:
@@ -397,7 +405,7 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
         check = capture_check(Path(tmp))
 
     out_dir.mkdir(parents=True, exist_ok=True)
-    _sheet([_small(t) for t in truth_maps], records, out_dir / "models_maps.png")
+    _sheet([_small(t) for t in truth_maps], records, out_dir / "models_maps.jpg")
     _plot_classes(results, out_dir / "models_classes.png")
     run_dir = os.environ.get("EBR_SHIPPED_RUN")
     summary = training_summary(Path(run_dir)) if run_dir else None
@@ -547,7 +555,7 @@ def _page(results: dict, ds, n: int, seconds: float, quick: bool, summary: dict 
         f"maps of each predictor in the order {', '.join(results)} ({THUMB}² thumbnails; normals as "
         "(n+1)/2, albedos sRGB-encoded, roughness linear).",
         "",
-        "![truth and estimates per test sample](models_maps.png)",
+        "![truth and estimates per test sample](models_maps.jpg)",
         "",
     ]
     return "\n".join(lines)
