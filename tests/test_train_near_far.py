@@ -41,7 +41,8 @@ def run_nf(tiny_nf, tmp_path_factory) -> Path:
 
 
 def _shots(item: dict) -> list[np.ndarray]:
-    return [item["photos"][k].permute(1, 2, 0).numpy() for k in range(4)]
+    """The four photos at the reference exposure (÷ the recorded exposure, as training sees them)."""
+    return [item["photos"][k].permute(1, 2, 0).numpy() / float(item["exposure"]) for k in range(4)]
 
 
 def test_tiny_near_far_data_has_four_shots(tiny_nf):

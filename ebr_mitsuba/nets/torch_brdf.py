@@ -42,8 +42,9 @@ def _dot(a, b):
 
 def _normalize(v, floor: float = 1e-30):
     # ``vector_norm(dim=-1)`` is fast along a contiguous last axis but 6× slower than a sum of
-    # squares on the (…, 3) views of (B, 3, H, W) maps (0.28 s against 0.047 s at 1024²).
-    if v.is_contiguous():
+    # squares on the (…, 3) views of (B, 3, H, W) maps (0.28 s against 0.047 s at 1024²). With
+    # gradients, vector_norm always: its backward at a zero vector is 0, sqrt's is inf (→ NaN).
+    if v.is_contiguous() or (v.requires_grad and torch.is_grad_enabled()):
         norm = torch.linalg.vector_norm(v, dim=-1, keepdim=True)
     else:
         norm = torch.sqrt((v * v).sum(dim=-1, keepdim=True))
