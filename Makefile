@@ -53,6 +53,7 @@ docs: llvm $(STAMP)
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check ebr_mitsuba plugins tests
+	$(VENV)/bin/ruff format --check ebr_mitsuba plugins tests
 
 clean:
 	rm -rf $(VENV) build *.egg-info

@@ -15,8 +15,15 @@ from .variant import ensure_variant
 __version__ = "0.1.0"
 
 __all__ = [
-    "EbrError", "InputError", "ConfigError", "RuntimeSetupError",
-    "SGEnvironment", "SVBRDF", "ensure_variant", "load_scene", "__version__",
+    "EbrError",
+    "InputError",
+    "ConfigError",
+    "RuntimeSetupError",
+    "SGEnvironment",
+    "SVBRDF",
+    "ensure_variant",
+    "load_scene",
+    "__version__",
 ]
 
 

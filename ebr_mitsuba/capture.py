@@ -115,8 +115,15 @@ def _as_env(env) -> EnvSource | None:
     return parse_env(str(env))
 
 
-def render_shot(svbrdf: SVBRDF, env_emitter: dict | None, shot: Shot, spp: int, seed: int = 0,
-                integrator: str = DEFAULT_INTEGRATOR, bsdf=None) -> np.ndarray:
+def render_shot(
+    svbrdf: SVBRDF,
+    env_emitter: dict | None,
+    shot: Shot,
+    spp: int,
+    seed: int = 0,
+    integrator: str = DEFAULT_INTEGRATOR,
+    bsdf=None,
+) -> np.ndarray:
     """Render one shot of ``svbrdf`` at the maps' resolution; returns (H, W, 3) float32.
 
     ``env_emitter`` is an emitter dict (``EnvSource.emitter_dict()``) or None; it lights the shot
@@ -134,8 +141,9 @@ def render_shot(svbrdf: SVBRDF, env_emitter: dict | None, shot: Shot, spp: int, 
     return np.array(image, dtype=np.float32).reshape(h, w, -1)[..., :3]
 
 
-def render_flash_only(svbrdf: SVBRDF, shot: Shot, spp: int, seed: int = 0,
-                      integrator: str = DEFAULT_INTEGRATOR) -> np.ndarray:
+def render_flash_only(
+    svbrdf: SVBRDF, shot: Shot, spp: int, seed: int = 0, integrator: str = DEFAULT_INTEGRATOR
+) -> np.ndarray:
     """``shot`` lit by its point light alone (environment off): the flash-only image, (H, W, 3)."""
     if shot.flash is None:
         raise InputError(f"shot {shot.name!r} has no flash; a flash-only image needs one")
@@ -149,13 +157,24 @@ def _check_out_dir(out_dir: Path) -> None:
     if not out_dir.is_dir():
         raise InputError(f"{out_dir}: exists and is not a directory; choose another --out")
     if any(out_dir.iterdir()) and not (out_dir / "capture.json").is_file():
-        raise InputError(f"{out_dir}: exists and is not a capture directory (no capture.json); "
-                         f"choose a new --out or remove it")
+        raise InputError(
+            f"{out_dir}: exists and is not a capture directory (no capture.json); "
+            f"choose a new --out or remove it"
+        )
 
 
-def capture(material, env, setup: str, out_dir, spp: int = DEFAULT_SPP, res: int = DEFAULT_RES,
-            seed: int = DEFAULT_SEED, integrator: str = DEFAULT_INTEGRATOR, env_scale: float = 1.0,
-            progress: bool = True) -> dict:
+def capture(
+    material,
+    env,
+    setup: str,
+    out_dir,
+    spp: int = DEFAULT_SPP,
+    res: int = DEFAULT_RES,
+    seed: int = DEFAULT_SEED,
+    integrator: str = DEFAULT_INTEGRATOR,
+    env_scale: float = 1.0,
+    progress: bool = True,
+) -> dict:
     """Render a capture of ``material`` under ``env`` with ``setup`` into ``out_dir``.
 
     ``material``: a material spec string, :class:`MaterialSource` or :class:`SVBRDF` (its size
@@ -177,16 +196,24 @@ def capture(material, env, setup: str, out_dir, spp: int = DEFAULT_SPP, res: int
 
     svbrdf = material if material_source is None else material_source.load(res)
     if svbrdf.shape != (res, res):
-        raise InputError(f"material {material_spec!r} is {svbrdf.shape[1]}x{svbrdf.shape[0]}; the capture "
-                         f"resolution is {res}x{res}")
+        raise InputError(
+            f"material {material_spec!r} is {svbrdf.shape[1]}x{svbrdf.shape[0]}; the capture "
+            f"resolution is {res}x{res}"
+        )
     env_emitter = None if env_source is None else env_source.emitter_dict(env_scale)
     bsdf = mi.load_dict(svbrdf_bsdf_dict(svbrdf))  # textures uploaded once for all shots
 
     shot_records = []
     with atomic_dir(out_dir) as tmp:
         # disable=None: tqdm draws only on a terminal (stderr), never into logs or pipes.
-        bar = tqdm(list(enumerate(shots)), desc=f"capture {setup}", unit="shot",
-                   disable=None if progress else True, leave=False, dynamic_ncols=True)
+        bar = tqdm(
+            list(enumerate(shots)),
+            desc=f"capture {setup}",
+            unit="shot",
+            disable=None if progress else True,
+            leave=False,
+            dynamic_ncols=True,
+        )
         for k, shot in bar:
             bar.set_postfix_str(shot.name)
             s = shot_seed(seed, k)
@@ -196,8 +223,13 @@ def capture(material, env, setup: str, out_dir, spp: int = DEFAULT_SPP, res: int
             fname = f"{shot.name}.exr"
             write_exr(tmp / fname, image)
             record = shot.to_json()
-            record.update(file=fname, seed=s, fov_axis="x", in_sample_grid=shot.in_sample_grid(),
-                          env=bool(shot.env and env_source is not None))
+            record.update(
+                file=fname,
+                seed=s,
+                fov_axis="x",
+                in_sample_grid=shot.in_sample_grid(),
+                env=bool(shot.env and env_source is not None),
+            )
             shot_records.append(record)
         bar.close()
         save_material_dir(svbrdf, tmp / "maps")
@@ -214,15 +246,24 @@ def capture(material, env, setup: str, out_dir, spp: int = DEFAULT_SPP, res: int
             "resolution": [res, res],
             "spp": spp,
             "seed": seed,
-            "integrator": {"type": integrator, "hide_emitters": True,
-                           **({"max_depth": PATH_MAX_DEPTH} if integrator == "path" else {})},
+            "integrator": {
+                "type": integrator,
+                "hide_emitters": True,
+                **({"max_depth": PATH_MAX_DEPTH} if integrator == "path" else {}),
+            },
             "reconstruction_filter": "box",
             "exposure": 1.0,
             "units": "linear radiance; flash intensity in W/sr (isotropic point light)",
             "grid": "pixel (i, j) sees x = -1 + (2j+1)/W, y = 1 - (2i+1)/H on the sample z = 0 "
-                    "(shots with in_sample_grid true)",
-            "material": {**(material_source.to_json() if material_source
-                            else {"spec": material_spec, "kind": "memory"}), "maps": "maps"},
+            "(shots with in_sample_grid true)",
+            "material": {
+                **(
+                    material_source.to_json()
+                    if material_source
+                    else {"spec": material_spec, "kind": "memory"}
+                ),
+                "maps": "maps",
+            },
             "env": env_record,
             "shots": shot_records,
             "renderer": {**describe(), "ebr_mitsuba": __version__},

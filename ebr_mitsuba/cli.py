@@ -59,10 +59,15 @@ def _global_options(parser, repeated: bool) -> None:
     ``default=SUPPRESS``, so they may also follow the subcommand without undoing a value given
     before it."""
     suppress = argparse.SUPPRESS
-    parser.add_argument("--variant", default=suppress if repeated else None, metavar="VARIANT",
-                        help=_VARIANT_HELP)
-    parser.add_argument("--deterministic", action="store_true", default=suppress if repeated else False,
-                        help=_DETERMINISTIC_HELP)
+    parser.add_argument(
+        "--variant", default=suppress if repeated else None, metavar="VARIANT", help=_VARIANT_HELP
+    )
+    parser.add_argument(
+        "--deterministic",
+        action="store_true",
+        default=suppress if repeated else False,
+        help=_DETERMINISTIC_HELP,
+    )
 
 
 def build_parser() -> argparse.ArgumentParser:

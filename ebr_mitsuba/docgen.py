@@ -24,9 +24,12 @@ def cli_page() -> str:
 
     parser = build_parser()
     sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-    out = [HEADER, "# Command reference\n\n",
-           "Each command's `--help`. The topical pages (docs/*.md) explain the commands with "
-           "examples; this page is their exact options.\n\n"]
+    out = [
+        HEADER,
+        "# Command reference\n\n",
+        "Each command's `--help`. The topical pages (docs/*.md) explain the commands with "
+        "examples; this page is their exact options.\n\n",
+    ]
     for name, p in sub.choices.items():
         buf = io.StringIO()
         p.print_help(buf)
@@ -69,10 +72,13 @@ def plugins_page() -> str:
     ensure_variant()
     from ebr_mitsuba.plugins import sgenvmap, svbrdf
 
-    out = [HEADER, "# Mitsuba plugins\n\n",
-           "Registered when `ebr_mitsuba` is imported after a variant is set "
-           "(`ebr_mitsuba.ensure_variant()`); "
-           "an XML scene using them loads through `ebr render` or `ebr_mitsuba.load_scene()`.\n\n"]
+    out = [
+        HEADER,
+        "# Mitsuba plugins\n\n",
+        "Registered when `ebr_mitsuba` is imported after a variant is set "
+        "(`ebr_mitsuba.ensure_variant()`); "
+        "an XML scene using them loads through `ebr render` or `ebr_mitsuba.load_scene()`.\n\n",
+    ]
     for module, cls_name in ((sgenvmap, "SGEnvMap"), (svbrdf, "SVBRDFBSDF")):
         cls = getattr(module, cls_name)
         body = rst_to_markdown(inspect.cleandoc(cls.__doc__))

@@ -117,9 +117,10 @@ def fit_error(env: SGEnvironment, cells: Cells) -> dict:
     lum_hat = float((w[:, 0] * (yhat @ LUMINANCE)).sum())
     return {
         "rel_l1": float((w * np.abs(diff)).sum() / max((w * np.abs(y)).sum(), 1e-300)),
-        "rel_rmse": float(math.sqrt((w * diff ** 2).sum() / max((w * y ** 2).sum(), 1e-300))),
-        "log_rmse": float(math.sqrt((w * (np.log(yhat + eps) - np.log(y + eps)) ** 2).sum()
-                                    / (3.0 * w.sum()))),
+        "rel_rmse": float(math.sqrt((w * diff**2).sum() / max((w * y**2).sum(), 1e-300))),
+        "log_rmse": float(
+            math.sqrt((w * (np.log(yhat + eps) - np.log(y + eps)) ** 2).sum() / (3.0 * w.sum()))
+        ),
         "energy": lum_hat / max(lum_y, 1e-300) - 1.0,
     }
 
@@ -139,11 +140,11 @@ def greedy_init(cells: Cells, lobes: int) -> SGEnvironment:
     dirs = cells.directions
     n_rows = math.sqrt(dirs.shape[0] / 2.0)
     texel = math.pi / max(n_rows - 1.0, 1.0)
-    lam_max = 2.0 / texel ** 2  # a lobe about one cell wide
+    lam_max = 2.0 / texel**2  # a lobe about one cell wide
     candidates = [lam for lam in INIT_SHARPNESS if lam <= lam_max] or [INIT_SHARPNESS[0]]
     mean = (w[:, None] * cells.radiance).sum(0) / w.sum()
     floor = np.maximum(1e-3 * mean, 1e-12)
-    total = float((w[:, None] * cells.radiance ** 2).sum())
+    total = float((w[:, None] * cells.radiance**2).sum())
     axes, sharp, amps = [], [], []
     while len(axes) < lobes:
         lum = residual @ LUMINANCE
@@ -236,9 +237,14 @@ class FitResult:
     settings: dict = field(default_factory=dict)
 
     def to_json(self) -> dict:
-        return {"lobes": self.env.num_lobes, "error": self.error, "initial_error": self.initial_error,
-                "loss_history": self.loss_history, "seconds": round(self.seconds, 3),
-                "settings": self.settings}
+        return {
+            "lobes": self.env.num_lobes,
+            "error": self.error,
+            "initial_error": self.initial_error,
+            "loss_history": self.loss_history,
+            "seconds": round(self.seconds, 3),
+            "settings": self.settings,
+        }
 
 
 def _check_settings(lobes, iterations, height, lr, log_weight) -> None:
@@ -254,9 +260,16 @@ def _check_settings(lobes, iterations, height, lr, log_weight) -> None:
         raise ConfigError(f"--log-weight must be >= 0 (got {log_weight!r})")
 
 
-def fit_sg(emap: EquirectMap, lobes: int = DEFAULT_LOBES, iterations: int = DEFAULT_ITERATIONS,
-           height: int = DEFAULT_HEIGHT, lr: float = DEFAULT_LR, log_weight: float = DEFAULT_LOG_WEIGHT,
-           eval_height: int = DEFAULT_EVAL_HEIGHT, progress=None) -> FitResult:
+def fit_sg(
+    emap: EquirectMap,
+    lobes: int = DEFAULT_LOBES,
+    iterations: int = DEFAULT_ITERATIONS,
+    height: int = DEFAULT_HEIGHT,
+    lr: float = DEFAULT_LR,
+    log_weight: float = DEFAULT_LOG_WEIGHT,
+    eval_height: int = DEFAULT_EVAL_HEIGHT,
+    progress=None,
+) -> FitResult:
     """Fit ``lobes`` SGs to ``emap`` (module docstring); returns a :class:`FitResult`.
 
     ``progress``: optional callable ``(iteration, loss)`` called every 50 iterations.
@@ -280,9 +293,15 @@ def fit_sg(emap: EquirectMap, lobes: int = DEFAULT_LOBES, iterations: int = DEFA
         dr.set_thread_count(threads)
     error = fit_error(env, eval_cells)
     error["fit"] = fit_error(env, cells)
-    settings = {"lobes": int(lobes), "iterations": int(iterations), "height": int(min(height, emap.shape[0])),
-                "lr": float(lr), "log_weight": float(log_weight), "eval_height": int(eval_height),
-                "source": emap.source}
+    settings = {
+        "lobes": int(lobes),
+        "iterations": int(iterations),
+        "height": int(min(height, emap.shape[0])),
+        "lr": float(lr),
+        "log_weight": float(log_weight),
+        "eval_height": int(eval_height),
+        "source": emap.source,
+    }
     return FitResult(env, error, fit_error(init, eval_cells), history, time.perf_counter() - t0, settings)
 
 
@@ -299,7 +318,7 @@ def _adam(cells: Cells, init: SGEnvironment, iterations: int, lr: float, log_wei
     w = mi.Float(cells.solid_angle.astype(np.float32))
     wy = cells.solid_angle[:, None] * cells.radiance
     eps = max(0.01 * float(wy.sum() / (3.0 * cells.solid_angle.sum())), 1e-12)
-    lin_norm = float((cells.solid_angle[:, None] * cells.radiance ** 2).sum())
+    lin_norm = float((cells.solid_angle[:, None] * cells.radiance**2).sum())
     lin_norm = max(lin_norm, 1e-30)
     log_norm = float(3.0 * cells.solid_angle.sum())
     log_target = dr.log(target + eps)
@@ -311,11 +330,14 @@ def _adam(cells: Cells, init: SGEnvironment, iterations: int, lr: float, log_wei
 
     # sharpness unbounded (sgparams docstring): sky lobes of real maps go below the extraction's 0.5
     a, s, m = sgparams.encode(init.axis, init.sharpness, init.amplitude, bounded=False)
-    opt = dr.opt.Adam(lr=lr, params={
-        "axis": mi.Vector3f(a[:, 0], a[:, 1], a[:, 2]),
-        "log_sharpness": mi.Float(s),
-        "log_amplitude": mi.Color3f(m[:, 0], m[:, 1], m[:, 2]),
-    })
+    opt = dr.opt.Adam(
+        lr=lr,
+        params={
+            "axis": mi.Vector3f(a[:, 0], a[:, 1], a[:, 2]),
+            "log_sharpness": mi.Float(s),
+            "log_amplitude": mi.Color3f(m[:, 0], m[:, 1], m[:, 2]),
+        },
+    )
     opt.set_learning_rate(axis=lr * 0.5)
 
     def model():
@@ -351,6 +373,7 @@ def _adam(cells: Cells, init: SGEnvironment, iterations: int, lr: float, log_wei
 
 # -- the peer fit -----------------------------------------------------------------------------
 
+
 def load_physg_fit(path: str | Path) -> SGEnvironment:
     """A PhySG ``(K, 7)`` ``.npy`` SG fit as a z-up :class:`SGEnvironment`.
 
@@ -383,5 +406,13 @@ def equirect_irradiance(emap: EquirectMap, normal=(0.0, 0.0, 1.0)) -> np.ndarray
     return (emap.data.astype(np.float64) * weight[..., None]).sum(axis=(0, 1))
 
 
-__all__ = ["Cells", "FitResult", "fit_error", "fit_sg", "greedy_init", "load_physg_fit",
-           "resample_equirect", "equirect_irradiance"]
+__all__ = [
+    "Cells",
+    "FitResult",
+    "fit_error",
+    "fit_sg",
+    "greedy_init",
+    "load_physg_fit",
+    "resample_equirect",
+    "equirect_irradiance",
+]

@@ -44,13 +44,13 @@ from .imageio import EXR_SUFFIXES, HDR_SUFFIXES, read_image
 from .sgenv import SGEnvironment
 
 #: 4×4 ``to_world`` of an envmap in our z-up world: map (x, y, z) → world (x, −z, y).
-ENVMAP_TO_WORLD = np.array([[1.0, 0.0, 0.0, 0.0],
-                            [0.0, 0.0, -1.0, 0.0],
-                            [0.0, 1.0, 0.0, 0.0],
-                            [0.0, 0.0, 0.0, 1.0]])
+ENVMAP_TO_WORLD = np.array(
+    [[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
+)
 
 
 # -- the frame rotation -------------------------------------------------------------------------
+
 
 def map_to_world(d: np.ndarray) -> np.ndarray:
     """Directions (…, 3) in Mitsuba's y-up envmap frame → our z-up world: (x, y, z) → (x, −z, y)."""
@@ -76,6 +76,7 @@ def envmap_to_world():
 
 
 # -- the direction ↔ uv helper pair ----------------------------------------------------------------
+
 
 def uv_to_direction(uv: np.ndarray) -> np.ndarray:
     """uv (…, 2) in Mitsuba's envmap convention → unit world directions (…, 3), z-up."""
@@ -159,8 +160,10 @@ class EquirectMap:
             raise InputError(f"{src}: environment map has shape {d.shape}; expected (H, W, 3) RGB")
         h, w, _ = d.shape
         if h < 2 or w != 2 * h:
-            raise InputError(f"{src}: environment map is {w}x{h}; an equirectangular map is 2:1 "
-                             f"(W = 2H, H >= 2): convert it to a latitude-longitude map")
+            raise InputError(
+                f"{src}: environment map is {w}x{h}; an equirectangular map is 2:1 "
+                f"(W = 2H, H >= 2): convert it to a latitude-longitude map"
+            )
         if not np.all(np.isfinite(d)):
             raise InputError(f"{src}: environment map has NaN or Inf texels; fix or regenerate it")
         lo = float(d.min())
@@ -169,8 +172,10 @@ class EquirectMap:
             # within NEGATIVE_TOLERANCE of the map's mean radiance are clipped; larger ones refused.
             mean = float(np.abs(d).mean())
             if -lo > NEGATIVE_TOLERANCE * mean:
-                raise InputError(f"{src}: environment map has negative radiance (min {lo:.4g}, mean "
-                                 f"{mean:.4g}); clip it at 0")
+                raise InputError(
+                    f"{src}: environment map has negative radiance (min {lo:.4g}, mean "
+                    f"{mean:.4g}); clip it at 0"
+                )
             d = np.maximum(d, 0.0)
         object.__setattr__(self, "data", np.ascontiguousarray(d))
 
@@ -207,8 +212,9 @@ def load_equirect(path: str | os.PathLike) -> EquirectMap:
     :class:`EquirectMap`; LDR files are refused (they do not hold radiance)."""
     path = Path(path)
     if path.suffix.lower() not in EXR_SUFFIXES + HDR_SUFFIXES:
-        raise InputError(f"{path}: an environment map must be a linear .exr or .hdr file "
-                         f"(LDR images do not hold radiance)")
+        raise InputError(
+            f"{path}: an environment map must be a linear .exr or .hdr file (LDR images do not hold radiance)"
+        )
     data = read_image(path, "linear", expect_channels=3)
     return EquirectMap(data, source=str(path))
 
@@ -222,7 +228,7 @@ def sg_to_equirect(env: SGEnvironment, height: int, width: int, rows_per_chunk: 
     dirs = equirect_directions(height, width)
     out = np.empty(dirs.shape, dtype=np.float32)
     for start in range(0, dirs.shape[0], rows_per_chunk):  # bounds the (rows, W, K) temporary
-        out[start:start + rows_per_chunk] = env.eval(dirs[start:start + rows_per_chunk])
+        out[start : start + rows_per_chunk] = env.eval(dirs[start : start + rows_per_chunk])
     return out
 
 

@@ -46,8 +46,10 @@ class DiskFullError(EbrError):
 
         self.path = os.fspath(path)
         self.device = device or mount_point(self.path)
-        super().__init__(f"no space left on device {self.device} writing {self.path}; free space on "
-                         f"{self.device} or choose another --out")
+        super().__init__(
+            f"no space left on device {self.device} writing {self.path}; free space on "
+            f"{self.device} or choose another --out"
+        )
 
     def __reduce__(self):  # pickled across process pools with its fields, not its message
         return (type(self), (self.path, self.device))

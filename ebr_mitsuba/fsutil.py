@@ -28,8 +28,9 @@ def atomic_path(path: str | os.PathLike):
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix + ".tmp" + path.suffix,
-                               dir=path.parent)
+    fd, tmp = tempfile.mkstemp(
+        prefix=f".{path.stem}.", suffix=path.suffix + ".tmp" + path.suffix, dir=path.parent
+    )
     os.close(fd)
     tmp = Path(tmp)
     try:
@@ -77,6 +78,7 @@ def atomic_dir(path: str | os.PathLike, overwrite: bool = True):
 
 # -- stale temporaries -------------------------------------------------------------------------------
 
+
 def is_temporary(name: str) -> bool:
     """Whether ``name`` is one of :func:`atomic_path`'s (``.stem.XXXX.ext.tmp.ext``) or
     :func:`atomic_dir`'s (``.name.XXXX.partial``, ``.name.old``) temporary names."""
@@ -102,6 +104,7 @@ def remove_stale_temporaries(directory: str | os.PathLike, recursive: bool = Tru
 
 
 # -- one writer per output -----------------------------------------------------------------------------
+
 
 def lock_path(path: str | os.PathLike) -> Path:
     """The lock file of output ``path``: ``.NAME.lock`` beside it (the output itself may be replaced
@@ -190,6 +193,7 @@ def output_lock(path: str | os.PathLike, what: str = "ebr") -> OutputLock:
 
 
 # -- termination ---------------------------------------------------------------------------------------
+
 
 class Terminated(SystemExit):
     """Raised in the main thread by :func:`sigterm_as_exit`'s handler (exit code 128 + 15)."""

@@ -54,17 +54,24 @@ class Shot:
         return cx == 0 and cy == 0 and self.target == (0.0, 0.0, 0.0) and abs(half - 1.0) < 1e-6
 
     def to_json(self) -> dict:
-        return {"name": self.name, "camera": list(self.camera), "target": list(self.target),
-                "up": list(self.up), "fov": self.fov,
-                "flash": None if self.flash is None else list(self.flash),
-                "flash_intensity": self.flash_intensity if self.flash is not None else 0.0,
-                "env": self.env, **self.extra}
+        return {
+            "name": self.name,
+            "camera": list(self.camera),
+            "target": list(self.target),
+            "up": list(self.up),
+            "fov": self.fov,
+            "flash": None if self.flash is None else list(self.flash),
+            "flash_intensity": self.flash_intensity if self.flash is not None else 0.0,
+            "env": self.env,
+            **self.extra,
+        }
 
 
 def near_shot(flash: bool, env: bool = True, intensity: float = DEFAULT_FLASH_INTENSITY, name=None) -> Shot:
     cam = (0.0, 0.0, NEAR_DISTANCE)
-    return Shot(name or ("flash" if flash else "noflash"), cam, NEAR_FOV, cam if flash else None,
-                intensity, env)
+    return Shot(
+        name or ("flash" if flash else "noflash"), cam, NEAR_FOV, cam if flash else None, intensity, env
+    )
 
 
 def far_shot(flash: bool, env: bool = True, intensity: float | None = None, name=None) -> Shot:
@@ -72,8 +79,14 @@ def far_shot(flash: bool, env: bool = True, intensity: float | None = None, name
     # Keep the flash irradiance at the sample the same as the near shot's (inverse-square law).
     if intensity is None:
         intensity = DEFAULT_FLASH_INTENSITY * (FAR_DISTANCE / NEAR_DISTANCE) ** 2
-    return Shot(name or ("far_flash" if flash else "far_noflash"), cam, FAR_FOV, cam if flash else None,
-                intensity, env)
+    return Shot(
+        name or ("far_flash" if flash else "far_noflash"),
+        cam,
+        FAR_FOV,
+        cam if flash else None,
+        intensity,
+        env,
+    )
 
 
 FIVE_LIGHT_POSITIONS = (
@@ -93,15 +106,18 @@ def setup_shots(setup: str, intensity: float = DEFAULT_FLASH_INTENSITY) -> list[
         return setup_shots("near", intensity) + [far_shot(True), far_shot(False)]
     if setup == "five-light":
         cam = (0.0, 0.0, NEAR_DISTANCE)
-        return [Shot(f"light{k}", cam, NEAR_FOV, p, intensity, env=False, extra={"light_index": k})
-                for k, p in enumerate(FIVE_LIGHT_POSITIONS)]
+        return [
+            Shot(f"light{k}", cam, NEAR_FOV, p, intensity, env=False, extra={"light_index": k})
+            for k, p in enumerate(FIVE_LIGHT_POSITIONS)
+        ]
     if setup == "multi-view":
         shots = []
         for a, oy in enumerate((0.6, 0.0, -0.6)):
             for b, ox in enumerate((-0.6, 0.0, 0.6)):
                 cam = (ox, oy, NEAR_DISTANCE)
-                shots.append(Shot(f"view{a}{b}_flash", cam, NEAR_FOV, cam, intensity, env=True,
-                                  extra={"grid": [a, b]}))
+                shots.append(
+                    Shot(f"view{a}{b}_flash", cam, NEAR_FOV, cam, intensity, env=True, extra={"grid": [a, b]})
+                )
         return shots
     raise InputError(f"unknown capture setup {setup!r}; use one of {', '.join(SETUPS)}")
 

@@ -66,6 +66,7 @@ IMAGE_SUFFIXES = EXR_SUFFIXES + HDR_SUFFIXES + PNG_SUFFIXES + JPEG_SUFFIXES
 
 # -- colour-science ---------------------------------------------------------------------------------
 
+
 @functools.cache
 def _colour():
     """colour-science, imported once. Its import warns that SciPy is absent (we need no SciPy
@@ -102,7 +103,7 @@ def linear_to_srgb(values: np.ndarray) -> np.ndarray:
 @functools.cache
 def _decode_lut(bits: int, colorspace: str) -> np.ndarray:
     """float32 value of every ``bits``-bit code: exact colour-science decoding, applied by lookup."""
-    codes = np.arange(2 ** bits, dtype=np.float64) / (2 ** bits - 1)
+    codes = np.arange(2**bits, dtype=np.float64) / (2**bits - 1)
     lut = srgb_to_linear(codes) if colorspace == "srgb" else codes.astype(np.float32)
     lut.setflags(write=False)
     return lut
@@ -128,10 +129,13 @@ def fast_writes(enabled: bool = True) -> Iterator[None]:
 
 # -- shared checks ----------------------------------------------------------------------------------
 
+
 def _check_colorspace(colorspace: str) -> None:
     if colorspace not in COLORSPACES:
-        raise ConfigError(f"unknown colour space {colorspace!r}; use 'srgb' (photos, albedo) or "
-                          f"'linear' (normal, roughness and other data maps)")
+        raise ConfigError(
+            f"unknown colour space {colorspace!r}; use 'srgb' (photos, albedo) or "
+            f"'linear' (normal, roughness and other data maps)"
+        )
 
 
 def _existing_file(path: str | os.PathLike) -> Path:
@@ -150,12 +154,20 @@ def _first_line(exc: BaseException) -> str:
 
 
 def _unreadable(path: Path, kind: str, exc: BaseException) -> InputError:
-    return InputError(f"{path}: cannot read it as {kind} ({_first_line(exc)}); the file is truncated "
-                      f"or not {kind}: re-export or re-download it")
+    return InputError(
+        f"{path}: cannot read it as {kind} ({_first_line(exc)}); the file is truncated "
+        f"or not {kind}: re-export or re-download it"
+    )
 
 
-def check_image(image: np.ndarray, source: str | os.PathLike, *, expect_channels: int | None = None,
-                expect_shape: tuple[int, int] | None = None, allow_nonfinite: bool = False) -> np.ndarray:
+def check_image(
+    image: np.ndarray,
+    source: str | os.PathLike,
+    *,
+    expect_channels: int | None = None,
+    expect_shape: tuple[int, int] | None = None,
+    allow_nonfinite: bool = False,
+) -> np.ndarray:
     """Validate an (H, W, C) image read from ``source``; return it unchanged.
 
     Raises :class:`InputError` naming ``source`` for a channel count other than
@@ -164,8 +176,9 @@ def check_image(image: np.ndarray, source: str | os.PathLike, *, expect_channels
     """
     h, w, c = image.shape
     if expect_channels is not None and c != expect_channels:
-        what = {1: "a single-channel (grey) image", 3: "an RGB image"}.get(expect_channels,
-                                                                         f"{expect_channels} channels")
+        what = {1: "a single-channel (grey) image", 3: "an RGB image"}.get(
+            expect_channels, f"{expect_channels} channels"
+        )
         raise InputError(f"{source}: has {c} channel{'s' if c != 1 else ''}; expected {what}")
     if expect_shape is not None and (h, w) != tuple(int(v) for v in expect_shape):
         eh, ew = (int(v) for v in expect_shape)
@@ -175,12 +188,15 @@ def check_image(image: np.ndarray, source: str | os.PathLike, *, expect_channels
         if bad.any():
             i, j, _ = np.argwhere(bad)[0]
             n = int(bad.any(axis=-1).sum())
-            raise InputError(f"{source}: {n} pixel{'s' if n != 1 else ''} NaN or Inf (first at row {i}, "
-                             f"column {j}); fix or regenerate the image")
+            raise InputError(
+                f"{source}: {n} pixel{'s' if n != 1 else ''} NaN or Inf (first at row {i}, "
+                f"column {j}); fix or regenerate the image"
+            )
     return image
 
 
 # -- EXR --------------------------------------------------------------------------------------------
+
 
 def _default_exr_channels(names: Sequence[str], path: Path) -> tuple[str, ...]:
     if {"R", "G", "B"} <= set(names):
@@ -189,13 +205,19 @@ def _default_exr_channels(names: Sequence[str], path: Path) -> tuple[str, ...]:
         return ("Y",)
     if len(names) == 1:
         return (names[0],)
-    raise InputError(f"{path}: has channels {', '.join(sorted(names))} but no R,G,B or Y; name the "
-                     f"channels to read")
+    raise InputError(
+        f"{path}: has channels {', '.join(sorted(names))} but no R,G,B or Y; name the channels to read"
+    )
 
 
-def read_exr(path: str | os.PathLike, channels: str | Sequence[str] | None = None, *,
-             expect_channels: int | None = None, expect_shape: tuple[int, int] | None = None,
-             allow_nonfinite: bool = False) -> np.ndarray:
+def read_exr(
+    path: str | os.PathLike,
+    channels: str | Sequence[str] | None = None,
+    *,
+    expect_channels: int | None = None,
+    expect_shape: tuple[int, int] | None = None,
+    allow_nonfinite: bool = False,
+) -> np.ndarray:
     """Read an OpenEXR file (first part) as float32 (H, W, C).
 
     ``channels``: the channel names to stack, in order (a str names one channel); default R,G,B
@@ -214,11 +236,18 @@ def read_exr(path: str | os.PathLike, channels: str | Sequence[str] | None = Non
     names = tuple(channels) if channels is not None else _default_exr_channels(tuple(found), path)
     missing = [n for n in names if n not in found]
     if missing:
-        raise InputError(f"{path}: has no channel {missing[0]!r} (it has {', '.join(sorted(found))}); "
-                         f"name existing channels")
+        raise InputError(
+            f"{path}: has no channel {missing[0]!r} (it has {', '.join(sorted(found))}); "
+            f"name existing channels"
+        )
     image = np.stack([np.asarray(found[n], dtype=np.float32) for n in names], axis=-1)
-    return check_image(image, path, expect_channels=expect_channels, expect_shape=expect_shape,
-                       allow_nonfinite=allow_nonfinite)
+    return check_image(
+        image,
+        path,
+        expect_channels=expect_channels,
+        expect_shape=expect_shape,
+        allow_nonfinite=allow_nonfinite,
+    )
 
 
 def _as_hwc(array, what: str) -> np.ndarray:
@@ -233,8 +262,12 @@ def _as_hwc(array, what: str) -> np.ndarray:
 EXR_COMPRESSIONS = ("zip", "none")
 
 
-def write_exr(path: str | os.PathLike, array: np.ndarray, channels: Sequence[str] | None = None,
-              compression: str | None = None) -> Path:
+def write_exr(
+    path: str | os.PathLike,
+    array: np.ndarray,
+    channels: Sequence[str] | None = None,
+    compression: str | None = None,
+) -> Path:
     """Write (H, W), (H, W, 1), (H, W, 3) or (H, W, C) as a float32 EXR, ZIP-compressed
     (``compression="zip"``) or uncompressed (``"none"``); None: ``"none"`` inside
     :func:`fast_writes`, else ``"zip"``.
@@ -247,8 +280,9 @@ def write_exr(path: str | os.PathLike, array: np.ndarray, channels: Sequence[str
     if compression is None:
         compression = "none" if _FAST_WRITES.get() else "zip"
     if compression not in EXR_COMPRESSIONS:
-        raise ValueError(f"write_exr {path}: compression must be one of {EXR_COMPRESSIONS}, "
-                         f"got {compression!r}")
+        raise ValueError(
+            f"write_exr {path}: compression must be one of {EXR_COMPRESSIONS}, got {compression!r}"
+        )
     a = _as_hwc(array, f"write_exr {path}").astype(np.float32, copy=False)
     c = a.shape[2]
     if channels is None:
@@ -270,8 +304,14 @@ def write_exr(path: str | os.PathLike, array: np.ndarray, channels: Sequence[str
 
 # -- Radiance HDR -----------------------------------------------------------------------------------
 
-def read_hdr(path: str | os.PathLike, *, expect_channels: int | None = None,
-             expect_shape: tuple[int, int] | None = None, allow_nonfinite: bool = False) -> np.ndarray:
+
+def read_hdr(
+    path: str | os.PathLike,
+    *,
+    expect_channels: int | None = None,
+    expect_shape: tuple[int, int] | None = None,
+    allow_nonfinite: bool = False,
+) -> np.ndarray:
     """Read a Radiance RGBE ``.hdr`` file as linear float32 (H, W, 3) (through ``mitsuba.Bitmap``)."""
     import mitsuba as mi
 
@@ -282,12 +322,17 @@ def read_hdr(path: str | os.PathLike, *, expect_channels: int | None = None,
         image = np.array(bitmap, dtype=np.float32, copy=True)
     except (RuntimeError, ValueError, OSError) as exc:
         raise _unreadable(path, "Radiance HDR", exc) from None
-    return check_image(image.reshape(image.shape[0], image.shape[1], -1), path,
-                       expect_channels=expect_channels, expect_shape=expect_shape,
-                       allow_nonfinite=allow_nonfinite)
+    return check_image(
+        image.reshape(image.shape[0], image.shape[1], -1),
+        path,
+        expect_channels=expect_channels,
+        expect_shape=expect_shape,
+        allow_nonfinite=allow_nonfinite,
+    )
 
 
 # -- PNG / JPEG ---------------------------------------------------------------------------------------
+
 
 def _read_png_codes(path: Path) -> tuple[np.ndarray, int]:
     """Integer codes (H, W, C) without alpha and their bit depth (8 or 16)."""
@@ -326,8 +371,13 @@ def _read_jpeg_codes(path: Path) -> tuple[np.ndarray, int]:
     return codes, 8
 
 
-def read_ldr(path: str | os.PathLike, colorspace: str = "srgb", *, expect_channels: int | None = None,
-             expect_shape: tuple[int, int] | None = None) -> np.ndarray:
+def read_ldr(
+    path: str | os.PathLike,
+    colorspace: str = "srgb",
+    *,
+    expect_channels: int | None = None,
+    expect_shape: tuple[int, int] | None = None,
+) -> np.ndarray:
     """Read an 8- or 16-bit PNG or an 8-bit JPEG as float32 (H, W, C), C = 1 or 3, in [0, 1].
 
     ``colorspace="srgb"`` decodes with colour-science's sRGB EOTF (photos, albedo);
@@ -360,8 +410,14 @@ def clip_hue(image: np.ndarray) -> np.ndarray:
     return a / top  # a pixel whose top is ≤ 1 is divided by 1: unchanged
 
 
-def write_png(path: str | os.PathLike, linear: np.ndarray, encode: str = "srgb", bits: int = 8,
-              clip: str = "channel", level: int | None = None) -> Path:
+def write_png(
+    path: str | os.PathLike,
+    linear: np.ndarray,
+    encode: str = "srgb",
+    bits: int = 8,
+    clip: str = "channel",
+    level: int | None = None,
+) -> Path:
     """Write a linear (H, W), (H, W, 1) or (H, W, 3) image as an 8- or 16-bit PNG, atomically.
 
     Values are clipped to [0, 1] (``clip="channel"``: each channel on its own; ``"hue"``: as
@@ -394,7 +450,7 @@ def write_png(path: str | os.PathLike, linear: np.ndarray, encode: str = "srgb",
     a = clip_hue(a) if clip == "hue" else np.clip(a, 0.0, 1.0)
     if encode == "srgb":
         a = _srgb_encode(a)
-    top = 2 ** bits - 1
+    top = 2**bits - 1
     a *= dtype(top)
     codes = np.rint(a, out=a).astype(np.uint8 if bits == 8 else np.uint16)
     fmt = mi.Bitmap.PixelFormat.Y if codes.shape[2] == 1 else mi.Bitmap.PixelFormat.RGB
@@ -411,8 +467,15 @@ def write_png(path: str | os.PathLike, linear: np.ndarray, encode: str = "srgb",
 
 # -- dispatch -------------------------------------------------------------------------------------
 
-def read_image(path: str | os.PathLike, colorspace: str = "srgb", *, expect_channels: int | None = None,
-               expect_shape: tuple[int, int] | None = None, allow_nonfinite: bool = False) -> np.ndarray:
+
+def read_image(
+    path: str | os.PathLike,
+    colorspace: str = "srgb",
+    *,
+    expect_channels: int | None = None,
+    expect_shape: tuple[int, int] | None = None,
+    allow_nonfinite: bool = False,
+) -> np.ndarray:
     """Read any supported image as linear float32 (H, W, C), dispatching on the suffix.
 
     ``colorspace`` applies to PNG/JPEG only (EXR and HDR are linear by definition).
@@ -426,11 +489,13 @@ def read_image(path: str | os.PathLike, colorspace: str = "srgb", *, expect_chan
         return read_hdr(path, allow_nonfinite=allow_nonfinite, **checks)
     if suffix in PNG_SUFFIXES + JPEG_SUFFIXES:
         return read_ldr(path, colorspace, **checks)
-    raise InputError(f"{path}: unsupported image type {suffix or '(no suffix)'!r}; use "
-                     f"{', '.join(IMAGE_SUFFIXES)}")
+    raise InputError(
+        f"{path}: unsupported image type {suffix or '(no suffix)'!r}; use {', '.join(IMAGE_SUFFIXES)}"
+    )
 
 
 # -- resampling -------------------------------------------------------------------------------------
+
 
 def _area_axis(a: np.ndarray, n_out: int, axis: int) -> np.ndarray:
     """Exact area average along ``axis``: output cell k covers input [k·s, (k+1)·s), s = n_in/n_out."""

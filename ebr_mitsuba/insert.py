@@ -66,18 +66,31 @@ OBJECTS = ("sphere", "cube", "none")
 MESH_SUFFIXES = (".obj", ".ply")
 #: Object materials: name → (what it is, Mitsuba BSDF dict).
 MATERIALS: dict[str, tuple[str, dict]] = {
-    "diffuse": ("grey Lambertian, albedo 0.8",
-                {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.8, 0.8, 0.8]}}),
-    "mirror": ("perfect mirror (reflectance 1)",
-               {"type": "conductor", "material": "none"}),
-    "glossy": ("grey rough metal, GGX α 0.1, reflectance 0.9",
-               {"type": "roughconductor", "distribution": "ggx", "alpha": 0.1, "material": "none",
-                "specular_reflectance": {"type": "rgb", "value": [0.9, 0.9, 0.9]}}),
-    "plastic": ("red rough plastic, GGX α 0.1, diffuse (0.6, 0.08, 0.05)",
-                {"type": "roughplastic", "distribution": "ggx", "alpha": 0.1,
-                 "diffuse_reflectance": {"type": "rgb", "value": [0.6, 0.08, 0.05]}}),
-    "glass": ("clear glass, index 1.5",
-              {"type": "dielectric", "int_ior": 1.5, "ext_ior": 1.0}),
+    "diffuse": (
+        "grey Lambertian, albedo 0.8",
+        {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.8, 0.8, 0.8]}},
+    ),
+    "mirror": ("perfect mirror (reflectance 1)", {"type": "conductor", "material": "none"}),
+    "glossy": (
+        "grey rough metal, GGX α 0.1, reflectance 0.9",
+        {
+            "type": "roughconductor",
+            "distribution": "ggx",
+            "alpha": 0.1,
+            "material": "none",
+            "specular_reflectance": {"type": "rgb", "value": [0.9, 0.9, 0.9]},
+        },
+    ),
+    "plastic": (
+        "red rough plastic, GGX α 0.1, diffuse (0.6, 0.08, 0.05)",
+        {
+            "type": "roughplastic",
+            "distribution": "ggx",
+            "alpha": 0.1,
+            "diffuse_reflectance": {"type": "rgb", "value": [0.6, 0.08, 0.05]},
+        },
+    ),
+    "glass": ("clear glass, index 1.5", {"type": "dielectric", "int_ior": 1.5, "ext_ior": 1.0}),
 }
 MESH_UP = ("y", "z")
 
@@ -105,6 +118,7 @@ GAP = 4  # white pixels between the panels
 
 # -- configuration ----------------------------------------------------------------------------------
 
+
 @dataclass(frozen=True)
 class InsertConfig:
     """What to insert and how to render it (defaults in :mod:`ebr_mitsuba.insert`'s constants).
@@ -126,14 +140,17 @@ class InsertConfig:
 
     def __post_init__(self):
         if self.material not in MATERIALS:
-            raise InputError(f"--material {self.material!r}: unknown material; use one of "
-                             f"{', '.join(MATERIALS)}")
+            raise InputError(
+                f"--material {self.material!r}: unknown material; use one of {', '.join(MATERIALS)}"
+            )
         if self.object not in OBJECTS:
             path = Path(self.object)
             if path.suffix.lower() not in MESH_SUFFIXES:
-                raise InputError(f"--object {self.object!r}: not one of {', '.join(OBJECTS)} and not a "
-                                 f"mesh file ({', '.join(MESH_SUFFIXES)}); give a built-in object or a "
-                                 f"Wavefront .obj")
+                raise InputError(
+                    f"--object {self.object!r}: not one of {', '.join(OBJECTS)} and not a "
+                    f"mesh file ({', '.join(MESH_SUFFIXES)}); give a built-in object or a "
+                    f"Wavefront .obj"
+                )
             if not path.is_file():
                 raise InputError(f"{path}: no such mesh file; give an existing .obj (or .ply) file")
         if self.mesh_up not in MESH_UP:
@@ -143,15 +160,20 @@ class InsertConfig:
         if self.res is not None and not (isinstance(self.res, int) and MIN_RES <= self.res <= MAX_RES):
             raise InputError(f"--res {self.res}: give an integer in [{MIN_RES}, {MAX_RES}]")
         if not (math.isfinite(self.scale) and 0 < self.scale <= 1):
-            raise InputError(f"--object-scale {self.scale}: give the object's width as a fraction of "
-                             f"the sample's width, in (0, 1]")
+            raise InputError(
+                f"--object-scale {self.scale}: give the object's width as a fraction of "
+                f"the sample's width, in (0, 1]"
+            )
         x, y = self.position
         if not (math.isfinite(x) and math.isfinite(y) and abs(x) <= 1 and abs(y) <= 1):
-            raise InputError(f"--position {x},{y}: the object's centre must lie on the sample, "
-                             f"x and y in [-1, 1]")
+            raise InputError(
+                f"--position {x},{y}: the object's centre must lie on the sample, x and y in [-1, 1]"
+            )
         if not (math.isfinite(self.elevation) and MIN_ELEVATION <= self.elevation <= 90):
-            raise InputError(f"--elevation {self.elevation}: give degrees in [{MIN_ELEVATION:g}, 90] "
-                             f"(90: the estimate's camera, straight above)")
+            raise InputError(
+                f"--elevation {self.elevation}: give degrees in [{MIN_ELEVATION:g}, 90] "
+                f"(90: the estimate's camera, straight above)"
+            )
         for name, seed in (("--seed", self.seed), ("--truth-seed", self.truth_seed)):
             if seed is not None and not (isinstance(seed, int) and 0 <= seed < 2**32):
                 raise InputError(f"{name} {seed}: give an integer in [0, 2^32)")
@@ -162,14 +184,23 @@ class InsertConfig:
         return self.scale * SAMPLE_WIDTH
 
     def to_json(self) -> dict:
-        return {"object": self.object, "material": self.material, "spp": self.spp, "res": self.res,
-                "object_scale": self.scale, "width": self.width, "position": list(self.position),
-                "elevation": self.elevation, "seed": self.seed,
-                "truth_seed": self.seed if self.truth_seed is None else self.truth_seed,
-                **({"mesh_up": self.mesh_up} if self.object not in OBJECTS else {})}
+        return {
+            "object": self.object,
+            "material": self.material,
+            "spp": self.spp,
+            "res": self.res,
+            "object_scale": self.scale,
+            "width": self.width,
+            "position": list(self.position),
+            "elevation": self.elevation,
+            "seed": self.seed,
+            "truth_seed": self.seed if self.truth_seed is None else self.truth_seed,
+            **({"mesh_up": self.mesh_up} if self.object not in OBJECTS else {}),
+        }
 
 
 # -- the scene's inputs: maps, lighting, camera -------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class Plate:
@@ -193,11 +224,13 @@ def _read_json(path: Path, what: str) -> dict:
     try:
         data = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"{path}: unreadable {what} ({getattr(exc, 'msg', None) or exc}); "
-                         f"regenerate it") from None
+        raise InputError(
+            f"{path}: unreadable {what} ({getattr(exc, 'msg', None) or exc}); regenerate it"
+        ) from None
     if not isinstance(data, dict):
-        raise InputError(f"{path}: expected a JSON object ({what}), got a {type(data).__name__}; "
-                         f"regenerate it")
+        raise InputError(
+            f"{path}: expected a JSON object ({what}), got a {type(data).__name__}; regenerate it"
+        )
     return data
 
 
@@ -218,8 +251,10 @@ def _check_fov(fov, source: Path) -> float:
     except (TypeError, ValueError):
         fov = float("nan")
     if not (math.isfinite(fov) and 1.0 <= fov <= 150.0):
-        raise InputError(f"{source}: the camera's field of view is {fov!r}; expected degrees in "
-                         f"[1, 150]; regenerate the file")
+        raise InputError(
+            f"{source}: the camera's field of view is {fov!r}; expected degrees in "
+            f"[1, 150]; regenerate the file"
+        )
     return fov
 
 
@@ -227,8 +262,10 @@ def _sg_plate_env(env: SGEnvironment, path: Path) -> tuple[Callable[[], dict], d
     from .scene import sg_emitter_dict
 
     if env.num_lobes == 0:
-        raise InputError(f"{path}: the environment has no lobes (a dark scene); an insertion needs "
-                         f"light: use an estimate from a flash/no-flash pair")
+        raise InputError(
+            f"{path}: the environment has no lobes (a dark scene); an insertion needs "
+            f"light: use an estimate from a flash/no-flash pair"
+        )
     return (lambda: sg_emitter_dict(env)), {"kind": "sg", "file": str(path), "lobes": env.num_lobes}
 
 
@@ -237,24 +274,31 @@ def load_estimate(directory) -> Plate:
     ``env.json``), or of an ``ebr capture`` directory (its true maps and environment)."""
     directory = Path(directory)
     if not directory.is_dir():
-        raise InputError(f"{directory}: no such estimate directory; give the --out directory of "
-                         f"`ebr estimate`")
+        raise InputError(
+            f"{directory}: no such estimate directory; give the --out directory of `ebr estimate`"
+        )
     if not (directory / "estimate.json").is_file():
         if (directory / "capture.json").is_file():
             return load_capture(directory)
-        raise InputError(f"{directory}: not an estimate directory (no estimate.json); give the --out "
-                         f"directory of `ebr estimate` (or an `ebr capture` directory)")
+        raise InputError(
+            f"{directory}: not an estimate directory (no estimate.json); give the --out "
+            f"directory of `ebr estimate` (or an `ebr capture` directory)"
+        )
     meta_path = directory / "estimate.json"
     meta = _read_json(meta_path, "estimate summary")
     if meta.get("format") != ESTIMATE_FORMAT:
-        raise InputError(f"{meta_path}: 'format' is {meta.get('format')!r}, not \"{ESTIMATE_FORMAT}\"; "
-                         f"give the output of `ebr estimate`")
+        raise InputError(
+            f"{meta_path}: 'format' is {meta.get('format')!r}, not \"{ESTIMATE_FORMAT}\"; "
+            f"give the output of `ebr estimate`"
+        )
     inputs = meta.get("inputs") if isinstance(meta.get("inputs"), dict) else {}
     fov = _check_fov(inputs.get("fov"), meta_path)
     env_path = directory / "env.json"
     if not env_path.is_file():
-        raise InputError(f"{env_path}: missing; this estimate has no lighting (a flash-only or "
-                         f"five-light estimate): run `ebr estimate` with --noflash for one")
+        raise InputError(
+            f"{env_path}: missing; this estimate has no lighting (a flash-only or "
+            f"five-light estimate): run `ebr estimate` with --noflash for one"
+        )
     env = SGEnvironment.load(env_path)
     maps = _load_maps(directory / "maps", "re-run `ebr estimate` to write the maps")
     emitter, env_record = _sg_plate_env(env, env_path)
@@ -268,8 +312,10 @@ def _capture_fov(meta: dict, meta_path: Path) -> float:
     noflash = [s for s in framing if s.get("flash") is None]
     pick = (noflash or framing or [None])[0]
     if pick is None:
-        raise InputError(f"{meta_path}: no shot frames the sample (in_sample_grid); give a capture "
-                         f"of the near, near-far, five-light or multi-view setup")
+        raise InputError(
+            f"{meta_path}: no shot frames the sample (in_sample_grid); give a capture "
+            f"of the near, near-far, five-light or multi-view setup"
+        )
     return _check_fov(pick.get("fov"), meta_path)
 
 
@@ -278,31 +324,39 @@ def load_capture(directory) -> Plate:
     with and the field of view of its camera."""
     directory = Path(directory)
     if not directory.is_dir():
-        raise InputError(f"{directory}: no such capture directory; give the --out directory of "
-                         f"`ebr capture`")
+        raise InputError(f"{directory}: no such capture directory; give the --out directory of `ebr capture`")
     meta_path = directory / "capture.json"
     if not meta_path.is_file():
-        raise InputError(f"{directory}: not a capture directory (no capture.json); --truth needs the "
-                         f"--out directory of `ebr capture`")
+        raise InputError(
+            f"{directory}: not a capture directory (no capture.json); --truth needs the "
+            f"--out directory of `ebr capture`"
+        )
     meta = _read_json(meta_path, "capture metadata")
     if meta.get("format") != CAPTURE_FORMAT:
-        raise InputError(f"{meta_path}: 'format' is {meta.get('format')!r}, not \"{CAPTURE_FORMAT}\"; "
-                         f"give a directory written by `ebr capture`")
+        raise InputError(
+            f"{meta_path}: 'format' is {meta.get('format')!r}, not \"{CAPTURE_FORMAT}\"; "
+            f"give a directory written by `ebr capture`"
+        )
     fov = _capture_fov(meta, meta_path)
     record = meta.get("env")
     if not isinstance(record, dict):
-        raise InputError(f"{meta_path}: the capture has no environment (a dark capture); an insertion "
-                         f"needs light: capture with --env")
-    maps = _load_maps(directory / (meta.get("material", {}) or {}).get("maps", "maps"),
-                      "re-run `ebr capture` to write the true maps")
+        raise InputError(
+            f"{meta_path}: the capture has no environment (a dark capture); an insertion "
+            f"needs light: capture with --env"
+        )
+    maps = _load_maps(
+        directory / (meta.get("material", {}) or {}).get("maps", "maps"),
+        "re-run `ebr capture` to write the true maps",
+    )
     if record.get("kind") == "sg":
         env_path = directory / str(record.get("file", "env.json"))
         emitter, env_record = _sg_plate_env(SGEnvironment.load(env_path), env_path)
     elif record.get("kind") == "equirect":
         emitter, env_record = _equirect_env(record, meta_path)
     else:
-        raise InputError(f"{meta_path}: unknown environment kind {record.get('kind')!r}; regenerate "
-                         f"the capture")
+        raise InputError(
+            f"{meta_path}: unknown environment kind {record.get('kind')!r}; regenerate the capture"
+        )
     return Plate(directory, "capture", maps, fov, emitter, env_record)
 
 
@@ -311,17 +365,21 @@ def _equirect_env(record: dict, meta_path: Path) -> tuple[Callable[[], dict], di
 
     path = Path(str(record.get("path", "")))
     if not path.is_file():
-        raise InputError(f"{meta_path}: the environment map {path} is gone; put it back or "
-                         f"re-run the capture")
+        raise InputError(
+            f"{meta_path}: the environment map {path} is gone; put it back or re-run the capture"
+        )
     if record.get("sha256") and file_sha256(path) != record["sha256"]:
-        raise InputError(f"{path}: changed since the capture (SHA-256 differs from capture.json); "
-                         f"restore it or re-run the capture")
+        raise InputError(
+            f"{path}: changed since the capture (SHA-256 differs from capture.json); "
+            f"restore it or re-run the capture"
+        )
     source = parse_env(str(path))
     scale = float(record.get("scale", 1.0))
     return (lambda: source.emitter_dict(scale)), {"kind": "equirect", "file": str(path), "scale": scale}
 
 
 # -- the scene -------------------------------------------------------------------------------------
+
 
 def camera_shot(fov: float, elevation: float = DEFAULT_ELEVATION) -> Shot:
     """The insertion camera: the estimate's near camera, swung to ``elevation`` degrees towards −y."""
@@ -340,14 +398,16 @@ def _mesh_dict(cfg: InsertConfig) -> dict:
 
     path = Path(cfg.object)
     kind = path.suffix.lower()[1:]
-    up = (mi.ScalarTransform4f().rotate([1.0, 0.0, 0.0], 90.0) if cfg.mesh_up == "y"
-          else mi.ScalarTransform4f())
+    up = (
+        mi.ScalarTransform4f().rotate([1.0, 0.0, 0.0], 90.0) if cfg.mesh_up == "y" else mi.ScalarTransform4f()
+    )
     try:
         mesh = mi.load_dict({"type": kind, "filename": str(path.resolve()), "to_world": up})
     except Exception as exc:  # Mitsuba's parser error: keep its reason, on one line
         reason = " ".join(str(exc).split(": ", 2)[-1].split())
-        raise InputError(f"{path}: Mitsuba could not read the mesh ({reason}); give a valid "
-                         f"Wavefront .obj (or .ply) file") from None
+        raise InputError(
+            f"{path}: Mitsuba could not read the mesh ({reason}); give a valid Wavefront .obj (or .ply) file"
+        ) from None
     if mesh.face_count() == 0:
         raise InputError(f"{path}: the mesh has no faces; give a .obj with at least one face")
     box = mesh.bbox()
@@ -361,12 +421,13 @@ def _mesh_dict(cfg: InsertConfig) -> dict:
     s = float(cfg.width / side)
     cx, cy = ((lo[:2] + hi[:2]) / 2).tolist()
     x, y = cfg.position
-    to_world = (mi.ScalarTransform4f().translate([x, y, 0.0])
-                @ mi.ScalarTransform4f().scale([s, s, s])
-                @ mi.ScalarTransform4f().translate([-cx, -cy, -float(lo[2])])
-                @ up)
-    return {"type": kind, "filename": str(path.resolve()), "to_world": to_world,
-            "face_normals": False}
+    to_world = (
+        mi.ScalarTransform4f().translate([x, y, 0.0])
+        @ mi.ScalarTransform4f().scale([s, s, s])
+        @ mi.ScalarTransform4f().translate([-cx, -cy, -float(lo[2])])
+        @ up
+    )
+    return {"type": kind, "filename": str(path.resolve()), "to_world": to_world, "face_normals": False}
 
 
 def object_dict(cfg: InsertConfig) -> dict | None:
@@ -380,16 +441,24 @@ def object_dict(cfg: InsertConfig) -> dict | None:
     if cfg.object == "sphere":
         shape = {"type": "sphere", "center": [x, y, half], "radius": half}
     elif cfg.object == "cube":
-        shape = {"type": "cube", "to_world": mi.ScalarTransform4f().translate([x, y, half])
-                 @ mi.ScalarTransform4f().scale(half)}
+        shape = {
+            "type": "cube",
+            "to_world": mi.ScalarTransform4f().translate([x, y, half]) @ mi.ScalarTransform4f().scale(half),
+        }
     else:
         shape = _mesh_dict(cfg)
     shape["bsdf"] = dict(MATERIALS[cfg.material][1])
     return shape
 
 
-def scene_dict(plate: Plate, cfg: InsertConfig, res: int, with_object: bool = True,
-               shape: dict | None = None, fov: float | None = None) -> dict:
+def scene_dict(
+    plate: Plate,
+    cfg: InsertConfig,
+    res: int,
+    with_object: bool = True,
+    shape: dict | None = None,
+    fov: float | None = None,
+) -> dict:
     """The insertion scene of ``plate`` (module docstring); ``shape``: a prepared
     :func:`object_dict` (built from ``cfg`` when None); ``fov``: the camera's field of view
     (None: the plate's own)."""
@@ -415,8 +484,9 @@ def pass_sizes(spp: int) -> list[int]:
     return [PASS_SPP] * full + ([rest] if rest else [])
 
 
-def render(scene_desc: dict, res: int, spp: int, seed: int, tick: Callable[[int], None] | None = None
-           ) -> np.ndarray:
+def render(
+    scene_desc: dict, res: int, spp: int, seed: int, tick: Callable[[int], None] | None = None
+) -> np.ndarray:
     """Render ``scene_desc`` in passes (module docstring); (res, res, 3) float32 radiance.
     ``tick(n)`` is called after each pass with its sample count."""
     import mitsuba as mi
@@ -438,13 +508,15 @@ def render(scene_desc: dict, res: int, spp: int, seed: int, tick: Callable[[int]
 
 # -- outputs ---------------------------------------------------------------------------------------
 
+
 def output_paths(out, truth: bool) -> dict[str, Path]:
     """The files written for ``--out OUT``: ``insert`` (OUT), with a truth also ``truth``
     (OUT's stem + ``_truth``, same suffix) and ``compare`` (stem + ``_compare.png``)."""
     out = Path(out)
     if out.suffix.lower() not in (".exr", ".png"):
-        raise InputError(f"--out {out}: give an image file name ending in .exr (linear radiance) or "
-                         f".png (sRGB preview)")
+        raise InputError(
+            f"--out {out}: give an image file name ending in .exr (linear radiance) or .png (sRGB preview)"
+        )
     if out.is_dir():
         raise InputError(f"--out {out}: is a directory; give an image file name")
     paths = {"insert": out}
@@ -501,6 +573,7 @@ def write_outputs(paths: dict[str, Path], images: dict[str, np.ndarray], gain: f
 
 # -- the job ---------------------------------------------------------------------------------------
 
+
 def run_insert(estimate_dir, out, cfg: InsertConfig, truth_dir=None, progress: bool = True) -> dict:
     """Insert ``cfg``'s object into the estimate at ``estimate_dir`` and write ``out`` (plus the
     truth insertion and the side-by-side picture when ``truth_dir`` is a capture directory).
@@ -521,8 +594,14 @@ def run_insert(estimate_dir, out, cfg: InsertConfig, truth_dir=None, progress: b
         renders.append(("truth", truth, cfg.seed if cfg.truth_seed is None else cfg.truth_seed))
 
     images, seconds = {}, {}
-    bar = tqdm(total=cfg.spp * len(renders), desc="insert", unit="spp", disable=None if progress else True,
-               leave=False, dynamic_ncols=True)
+    bar = tqdm(
+        total=cfg.spp * len(renders),
+        desc="insert",
+        unit="spp",
+        disable=None if progress else True,
+        leave=False,
+        dynamic_ncols=True,
+    )
     try:
         for key, p, seed in renders:
             bar.set_postfix_str(key)
@@ -537,8 +616,12 @@ def run_insert(estimate_dir, out, cfg: InsertConfig, truth_dir=None, progress: b
     summary = {
         "out": str(paths["insert"]),
         "files": files,
-        "estimate": {"path": str(plate.source), "kind": plate.kind, "env": plate.env,
-                     "maps": list(plate.maps.shape)},
+        "estimate": {
+            "path": str(plate.source),
+            "kind": plate.kind,
+            "env": plate.env,
+            "maps": list(plate.maps.shape),
+        },
         **cfg.to_json(),
         "resolution": [res, res],
         "fov": plate.fov,
@@ -549,16 +632,35 @@ def run_insert(estimate_dir, out, cfg: InsertConfig, truth_dir=None, progress: b
         "renderer": describe(),
     }
     if truth is not None:
-        summary["truth"] = {"path": str(truth.source), "env": truth.env, "maps": list(truth.maps.shape),
-                            "fov": truth.fov}
+        summary["truth"] = {
+            "path": str(truth.source),
+            "env": truth.env,
+            "maps": list(truth.maps.shape),
+            "fov": truth.fov,
+        }
         if abs(truth.fov - plate.fov) > 1e-3:
-            summary["warnings"] = [f"the capture's field of view is {truth.fov:g} degrees, the estimate's "
-                                   f"{plate.fov:g}: both are rendered with the estimate's camera"]
+            summary["warnings"] = [
+                f"the capture's field of view is {truth.fov:g} degrees, the estimate's "
+                f"{plate.fov:g}: both are rendered with the estimate's camera"
+            ]
         summary["rmse"] = rmse(images["insert"], images["truth"])
         summary["rel_rmse"] = rel_rmse(images["insert"], images["truth"])
     summary["seconds"] = round(time.perf_counter() - t0, 3)
     return summary
 
 
-__all__ = ["InsertConfig", "Plate", "MATERIALS", "OBJECTS", "camera_shot", "load_capture", "load_estimate",
-           "object_dict", "output_paths", "render", "run_insert", "scene_dict", "side_by_side"]
+__all__ = [
+    "InsertConfig",
+    "Plate",
+    "MATERIALS",
+    "OBJECTS",
+    "camera_shot",
+    "load_capture",
+    "load_estimate",
+    "object_dict",
+    "output_paths",
+    "render",
+    "run_insert",
+    "scene_dict",
+    "side_by_side",
+]

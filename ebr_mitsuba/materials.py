@@ -66,23 +66,25 @@ _LDR_SUFFIXES = (".png", ".jpg", ".jpeg")
 
 CONVENTIONS = {
     "frame": "tangent space: +x tangent, +y bitangent, +z geometric normal; row 0 of every map "
-             "is the top of the sample (+y)",
-    "normal": "unit vectors, OpenGL (+Y up); EXR stores n in [-1, 1]; normal.png stores (n+1)/2 "
-              "linear",
+    "is the top of the sample (+y)",
+    "normal": "unit vectors, OpenGL (+Y up); EXR stores n in [-1, 1]; normal.png stores (n+1)/2 linear",
     "diffuse": "linear RGB albedo d in [0, 1], BRDF term d/pi; diffuse.png is sRGB-encoded",
     "specular": "linear RGB Schlick F0 in [0, 1]; specular.png is sRGB-encoded",
     "roughness": "one channel r in [0, 1], GGX alpha = r^2 (clamped to >= 0.03 in the BRDF); "
-                 "roughness.png is linear",
+    "roughness.png is linear",
 }
 _RESERVED_KEYS = ("format", "size", "conventions", "maps")
 
 
 # -- helpers ------------------------------------------------------------------------------------
 
+
 def _check_normal_convention(convention: str) -> None:
     if convention not in NORMAL_CONVENTIONS:
-        raise ConfigError(f"unknown normal convention {convention!r}; use 'opengl' (+Y up) or "
-                          f"'directx' (+Y down, green flipped)")
+        raise ConfigError(
+            f"unknown normal convention {convention!r}; use 'opengl' (+Y up) or "
+            f"'directx' (+Y down, green flipped)"
+        )
 
 
 def _parse_size(size) -> tuple[int, int] | None:
@@ -99,20 +101,24 @@ def _parse_size(size) -> tuple[int, int] | None:
     return h, w
 
 
-def _check_range(values: np.ndarray, path, name: str, lo: float = 0.0, hi: float = 1.0,
-                 tol: float = _RANGE_TOL) -> None:
+def _check_range(
+    values: np.ndarray, path, name: str, lo: float = 0.0, hi: float = 1.0, tol: float = _RANGE_TOL
+) -> None:
     vmin, vmax = float(values.min()), float(values.max())
     if vmin < lo - tol or vmax > hi + tol:
-        raise InputError(f"{path}: {name} values lie in [{vmin:.4g}, {vmax:.4g}], outside "
-                         f"[{lo:g}, {hi:g}]; clip or rescale the {name} map")
+        raise InputError(
+            f"{path}: {name} values lie in [{vmin:.4g}, {vmax:.4g}], outside "
+            f"[{lo:g}, {hi:g}]; clip or rescale the {name} map"
+        )
 
 
 # Lowest z a repaired normal keeps (about 87° from the geometric normal).
 _MIN_REPAIRED_Z = 0.05
 
 
-def decode_normals(normal: np.ndarray, path, convention: str = "opengl", encoded: bool = False,
-                   repair: bool = False) -> np.ndarray:
+def decode_normals(
+    normal: np.ndarray, path, convention: str = "opengl", encoded: bool = False, repair: bool = False
+) -> np.ndarray:
     """Tangent-space normals (H, W, 3) → unit OpenGL normals, float32.
 
     ``encoded``: values are (n+1)/2 in [0, 1] (PNG/JPEG) and decode as 2v − 1. ``directx`` flips
@@ -133,8 +139,9 @@ def decode_normals(normal: np.ndarray, path, convention: str = "opengl", encoded
         n[..., 2] = np.maximum(n[..., 2], _MIN_REPAIRED_Z)
     if float(n[..., 2].min()) < 0.0:
         count = int((n[..., 2] < 0).sum())
-        raise InputError(f"{path}: {count} normals point into the surface (z < 0); give a "
-                         f"tangent-space normal map")
+        raise InputError(
+            f"{path}: {count} normals point into the surface (z < 0); give a tangent-space normal map"
+        )
     length = np.linalg.norm(n, axis=-1, keepdims=True)
     if float(length.min()) < 1e-6:
         raise InputError(f"{path}: the normal map has zero-length normals; fix the map")
@@ -143,13 +150,16 @@ def decode_normals(normal: np.ndarray, path, convention: str = "opengl", encoded
 
 # -- material directories -------------------------------------------------------------------------
 
+
 def _map_file(directory: Path, name: str) -> Path:
     for suffix in (".exr",) + _LDR_SUFFIXES:
         candidate = directory / f"{name}{suffix}"
         if candidate.is_file():
             return candidate
-    raise InputError(f"{directory}: no {name}.exr (or {name}.png); a material directory needs "
-                     f"{', '.join(f'{m}.exr' for m in MAP_NAMES)}")
+    raise InputError(
+        f"{directory}: no {name}.exr (or {name}.png); a material directory needs "
+        f"{', '.join(f'{m}.exr' for m in MAP_NAMES)}"
+    )
 
 
 def load_material_meta(path: str | os.PathLike) -> dict:
@@ -160,19 +170,24 @@ def load_material_meta(path: str | os.PathLike) -> dict:
     try:
         meta = json.loads(file.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"{file}: malformed JSON ({getattr(exc, 'msg', exc)}); fix the file or "
-                         f"delete it") from None
+        raise InputError(
+            f"{file}: malformed JSON ({getattr(exc, 'msg', exc)}); fix the file or delete it"
+        ) from None
     if not isinstance(meta, dict):
-        raise InputError(f"{file}: expected a JSON object {{\"format\": \"{MATERIAL_FORMAT}\", ...}}, "
-                         f"got a {type(meta).__name__}")
+        raise InputError(
+            f'{file}: expected a JSON object {{"format": "{MATERIAL_FORMAT}", ...}}, '
+            f"got a {type(meta).__name__}"
+        )
     if meta.get("format", MATERIAL_FORMAT) != MATERIAL_FORMAT:
-        raise InputError(f"{file}: 'format' is {meta.get('format')!r}; this version reads "
-                         f"\"{MATERIAL_FORMAT}\"")
+        raise InputError(
+            f"{file}: 'format' is {meta.get('format')!r}; this version reads \"{MATERIAL_FORMAT}\""
+        )
     return meta
 
 
-def load_material_dir(path: str | os.PathLike, albedo_colorspace: str = "srgb",
-                      normal_convention: str = "opengl") -> SVBRDF:
+def load_material_dir(
+    path: str | os.PathLike, albedo_colorspace: str = "srgb", normal_convention: str = "opengl"
+) -> SVBRDF:
     """Read a material directory (see the module docstring) as an :class:`SVBRDF`.
 
     ``albedo_colorspace`` ("srgb" | "linear") decodes diffuse/specular PNGs (ignored for EXR);
@@ -180,8 +195,10 @@ def load_material_dir(path: str | os.PathLike, albedo_colorspace: str = "srgb",
     """
     directory = Path(path)
     if not directory.is_dir():
-        raise InputError(f"{directory}: no such material directory; give a directory with "
-                         f"{', '.join(f'{m}.exr' for m in MAP_NAMES)}")
+        raise InputError(
+            f"{directory}: no such material directory; give a directory with "
+            f"{', '.join(f'{m}.exr' for m in MAP_NAMES)}"
+        )
     _check_normal_convention(normal_convention)
     load_material_meta(directory)  # validates material.json when present
     files = {name: _map_file(directory, name) for name in MAP_NAMES}
@@ -201,13 +218,16 @@ def load_material_dir(path: str | os.PathLike, albedo_colorspace: str = "srgb",
     for name in ("diffuse", "specular", "roughness"):
         if maps[name].shape[:2] != shape:
             h, w = maps[name].shape[:2]
-            raise InputError(f"{files[name]}: is {w}x{h} but {files['normal'].name} is "
-                             f"{shape[1]}x{shape[0]}; resample the maps to one size")
+            raise InputError(
+                f"{files[name]}: is {w}x{h} but {files['normal'].name} is "
+                f"{shape[1]}x{shape[0]}; resample the maps to one size"
+            )
     return SVBRDF(source=str(directory), **maps)
 
 
-def save_material_dir(svbrdf: SVBRDF, path: str | os.PathLike, meta: dict | None = None,
-                      overwrite: bool = True) -> Path:
+def save_material_dir(
+    svbrdf: SVBRDF, path: str | os.PathLike, meta: dict | None = None, overwrite: bool = True
+) -> Path:
     """Write ``svbrdf`` as a material directory (four EXRs, PNG previews, ``material.json``).
 
     ``meta`` adds keys to ``material.json`` (e.g. ``source``, ``licence``; the reserved keys
@@ -250,12 +270,17 @@ def resample_svbrdf(svbrdf: SVBRDF, size: int | tuple[int, int]) -> SVBRDF:
     target = _parse_size(size)
     if target == svbrdf.shape:
         return svbrdf
-    return SVBRDF(normal=resize_area(svbrdf.normal, target), diffuse=resize_area(svbrdf.diffuse, target),
-                  specular=resize_area(svbrdf.specular, target),
-                  roughness=resize_area(svbrdf.roughness, target), source=svbrdf.source)
+    return SVBRDF(
+        normal=resize_area(svbrdf.normal, target),
+        diffuse=resize_area(svbrdf.diffuse, target),
+        specular=resize_area(svbrdf.specular, target),
+        roughness=resize_area(svbrdf.roughness, target),
+        source=svbrdf.source,
+    )
 
 
 # -- glTF metallic/roughness ------------------------------------------------------------------------
+
 
 def _scalar_map(values, name: str, source: str) -> np.ndarray:
     a = np.asarray(values, dtype=np.float32)
@@ -266,8 +291,13 @@ def _scalar_map(values, name: str, source: str) -> np.ndarray:
     return a
 
 
-def from_metal_rough(basecolor: np.ndarray, metallic: np.ndarray, roughness: np.ndarray,
-                     normal: np.ndarray | None = None, source: str = "<memory>") -> SVBRDF:
+def from_metal_rough(
+    basecolor: np.ndarray,
+    metallic: np.ndarray,
+    roughness: np.ndarray,
+    normal: np.ndarray | None = None,
+    source: str = "<memory>",
+) -> SVBRDF:
     """Convert glTF metallic/roughness maps to our SVBRDF.
 
     ``basecolor`` (H, W, 3) linear RGB in [0, 1]; ``metallic`` and ``roughness`` (H, W) or
@@ -281,8 +311,10 @@ def from_metal_rough(basecolor: np.ndarray, metallic: np.ndarray, roughness: np.
     r = _scalar_map(roughness, "roughness", source)
     for name, arr in (("base colour", base), ("metalness", m), ("roughness", r)):
         if arr.shape[:2] != base.shape[:2]:
-            raise InputError(f"{source}: {name} map is {arr.shape[1]}x{arr.shape[0]} but the base colour "
-                             f"is {base.shape[1]}x{base.shape[0]}; resample the maps to one size")
+            raise InputError(
+                f"{source}: {name} map is {arr.shape[1]}x{arr.shape[0]} but the base colour "
+                f"is {base.shape[1]}x{base.shape[0]}; resample the maps to one size"
+            )
         if not np.all(np.isfinite(arr)):
             raise InputError(f"{source}: {name} map has NaN or Inf values; fix the map")
         _check_range(arr, source, name)
@@ -313,8 +345,10 @@ def _find_textures(directory: Path) -> dict[str, Path]:
     for role, patterns in _TEXTURE_ROLES.items():
         hits = [p for p in files if any(re.search(pat, p.stem) for pat in patterns)]
         if len(hits) > 1:
-            raise InputError(f"{directory}: several {role} textures ({', '.join(p.name for p in hits)}); "
-                             f"keep one texture set per directory")
+            raise InputError(
+                f"{directory}: several {role} textures ({', '.join(p.name for p in hits)}); "
+                f"keep one texture set per directory"
+            )
         if hits:
             found[role] = hits[0]
     return found
@@ -335,10 +369,14 @@ def read_texture_index(path: str | os.PathLike) -> dict:
         raise InputError(f"{file}: no such texture-set index") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise InputError(f"{file}: malformed JSON ({getattr(exc, 'msg', exc)}); restore the file") from None
-    if (not isinstance(doc, dict) or doc.get("format") != TEXTURE_INDEX_FORMAT
-            or not isinstance(doc.get("sets"), dict)):
-        raise InputError(f"{file}: not a texture-set index (expected format "
-                         f"{TEXTURE_INDEX_FORMAT!r} and a 'sets' table)")
+    if (
+        not isinstance(doc, dict)
+        or doc.get("format") != TEXTURE_INDEX_FORMAT
+        or not isinstance(doc.get("sets"), dict)
+    ):
+        raise InputError(
+            f"{file}: not a texture-set index (expected format {TEXTURE_INDEX_FORMAT!r} and a 'sets' table)"
+        )
     return doc["sets"]
 
 
@@ -378,10 +416,18 @@ def _load_indexed_set(directory: Path, entry: dict) -> SVBRDF:
     base = base[..., :3]
     shape = base.shape[:2]
     nfile = directory / maps["normal"]
-    normal = decode_normals(read_image(nfile, "linear", expect_channels=3, expect_shape=shape), nfile,
-                            entry.get("normal_convention", "opengl"), encoded=True, repair=True)
-    arm = (read_image(directory / maps["arm"], "linear", expect_channels=3, expect_shape=shape)
-           if "arm" in maps else None)
+    normal = decode_normals(
+        read_image(nfile, "linear", expect_channels=3, expect_shape=shape),
+        nfile,
+        entry.get("normal_convention", "opengl"),
+        encoded=True,
+        repair=True,
+    )
+    arm = (
+        read_image(directory / maps["arm"], "linear", expect_channels=3, expect_shape=shape)
+        if "arm" in maps
+        else None
+    )
     if "roughness" in maps:
         rough = read_image(directory / maps["roughness"], "linear", expect_shape=shape)[..., 0]
     else:
@@ -411,8 +457,10 @@ def load_texture_set(path: str | os.PathLike, size: int | tuple[int, int] | None
         svbrdf = _load_indexed_set(directory, entry)
         return svbrdf if target is None else resample_svbrdf(svbrdf, target)
     tex = _find_textures(directory)
-    expected = ("expected Poly Haven *_diff_1k/*_nor_gl_1k/*_arm_1k or ambientCG "
-                "*_Color/*_Normal/*_Roughness[/*_Metalness] images")
+    expected = (
+        "expected Poly Haven *_diff_1k/*_nor_gl_1k/*_arm_1k or ambientCG "
+        "*_Color/*_Normal/*_Roughness[/*_Metalness] images"
+    )
     if "basecolor" not in tex:
         raise InputError(f"{directory}: no base-colour texture; {expected}")
     if "normal_gl" in tex:
@@ -423,12 +471,19 @@ def load_texture_set(path: str | os.PathLike, size: int | tuple[int, int] | None
         raise InputError(f"{directory}: no normal texture; {expected}")
     base = read_image(tex["basecolor"], "srgb", expect_channels=3)
     shape = base.shape[:2]
-    normal = decode_normals(read_image(normal_file, "linear", expect_channels=3, expect_shape=shape),
-                            normal_file, convention, encoded=True)
+    normal = decode_normals(
+        read_image(normal_file, "linear", expect_channels=3, expect_shape=shape),
+        normal_file,
+        convention,
+        encoded=True,
+    )
     if "roughness" in tex:  # grey maps; an RGB-saved grey map gives its first channel
         rough = read_image(tex["roughness"], "linear", expect_shape=shape)[..., 0]
-        metal = (read_image(tex["metalness"], "linear", expect_shape=shape)[..., 0]
-                 if "metalness" in tex else np.zeros(shape, np.float32))
+        metal = (
+            read_image(tex["metalness"], "linear", expect_shape=shape)[..., 0]
+            if "metalness" in tex
+            else np.zeros(shape, np.float32)
+        )
     elif "arm" in tex:
         arm = read_image(tex["arm"], "linear", expect_channels=3, expect_shape=shape)
         rough, metal = arm[..., 1], arm[..., 2]
@@ -444,12 +499,14 @@ def is_material_dir(path: str | os.PathLike) -> bool:
     p = Path(path)
     if _indexed_entry(p) is not None:
         return False
-    return (p / "material.json").is_file() or any((p / f"normal{s}").is_file()
-                                                   for s in (".exr",) + _LDR_SUFFIXES)
+    return (p / "material.json").is_file() or any(
+        (p / f"normal{s}").is_file() for s in (".exr",) + _LDR_SUFFIXES
+    )
 
 
-def load_material(path: str | os.PathLike, size: int | tuple[int, int] | None = None,
-                  albedo_colorspace: str = "srgb") -> SVBRDF:
+def load_material(
+    path: str | os.PathLike, size: int | tuple[int, int] | None = None, albedo_colorspace: str = "srgb"
+) -> SVBRDF:
     """A material directory (:func:`load_material_dir`) or a texture set
     (:func:`load_texture_set`), optionally area-resampled to ``size``."""
     if is_material_dir(path):

@@ -28,8 +28,15 @@ class Estimate:
         return float(np.sqrt(np.mean(self.stderr**2))) / max(sig, 1e-12)
 
 
-def trace(scene, origins: np.ndarray, directions: np.ndarray, spp: int = 256, seed: int = 0,
-          integrator: dict | None = None, batch_rays: int = 1 << 22) -> Estimate:
+def trace(
+    scene,
+    origins: np.ndarray,
+    directions: np.ndarray,
+    spp: int = 256,
+    seed: int = 0,
+    integrator: dict | None = None,
+    batch_rays: int = 1 << 22,
+) -> Estimate:
     """Radiance arriving at ``origins`` from ``directions`` (i.e. leaving the surface towards the
     origin), estimated with ``spp`` independent paths per query by ``integrator`` (default: ``path``
     with ``max_depth=3``, enough for a lone plane)."""

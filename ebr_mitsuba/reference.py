@@ -72,9 +72,20 @@ INV_PI = 1.0 / math.pi
 TWO_PI = 2.0 * math.pi
 
 __all__ = [
-    "brdf_eval", "sg_eval", "sg_integral", "sg_inner_product", "sg_cosine_signed", "sg_irradiance",
-    "vmf_pdf", "vmf_rule", "polar_rule", "ggx_rule", "hemisphere_rule", "integration_rule",
-    "render_env", "render_point",
+    "brdf_eval",
+    "sg_eval",
+    "sg_integral",
+    "sg_inner_product",
+    "sg_cosine_signed",
+    "sg_irradiance",
+    "vmf_pdf",
+    "vmf_rule",
+    "polar_rule",
+    "ggx_rule",
+    "hemisphere_rule",
+    "integration_rule",
+    "render_env",
+    "render_point",
 ]
 
 
@@ -109,8 +120,7 @@ def _frame(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     sign = math.copysign(1.0, z)
     a = -1.0 / (sign + z)
     b = x * y * a
-    return (np.array([1.0 + sign * x * x * a, sign * b, -sign * x]),
-            np.array([b, sign + y * y * a, -y]))
+    return (np.array([1.0 + sign * x * x * a, sign * b, -sign * x]), np.array([b, sign + y * y * a, -y]))
 
 
 def _rgb(x) -> np.ndarray:
@@ -268,7 +278,7 @@ def _vmf_panels(lam: float, em: float, breaks_t) -> list[tuple[str, float, float
     s_edges = {0.0, 0.5}
     k_max = min(int(math.ceil(2.0 * lam / math.log(16.0))) + 1, 14)
     for k in range(1, k_max + 1):
-        s_edges.add(16.0 ** -k)
+        s_edges.add(16.0**-k)
     for tb in breaks_t:
         u = math.expm1(lam * (tb - 1.0)) / em  # e^{λ(t−1)} = 1 + u·em
         if u <= 0.5:
@@ -277,8 +287,9 @@ def _vmf_panels(lam: float, em: float, breaks_t) -> list[tuple[str, float, float
             _graded(s_edges, (math.exp(lam * (tb - 1.0)) - math.exp(-2.0 * lam)) / -em)
     u_e = sorted(u_edges)
     s_e = sorted(s_edges)
-    return ([("u", lo, hi) for lo, hi in zip(u_e[:-1], u_e[1:]) if hi - lo > 1e-15]
-            + [("s", lo, hi) for lo, hi in zip(s_e[:-1], s_e[1:]) if hi - lo > 1e-300])
+    return [("u", lo, hi) for lo, hi in zip(u_e[:-1], u_e[1:]) if hi - lo > 1e-15] + [
+        ("s", lo, hi) for lo, hi in zip(s_e[:-1], s_e[1:]) if hi - lo > 1e-300
+    ]
 
 
 def _tangent_heights(axis, clips) -> list[float]:
@@ -325,8 +336,7 @@ def vmf_rule(axis, sharpness, n_u: int = 32, n_phi: int = 64, clips=()):
     jac = -em / (lam * g)  # |d cos θ / du|
     ring, phi, qphi = _ring_arcs(_circle_constraints(xi, e1, e2, t, st, clips), n_phi)
     sin_t = st[ring]
-    dirs = (e1 * (sin_t * np.cos(phi))[:, None] + e2 * (sin_t * np.sin(phi))[:, None]
-            + xi * t[ring][:, None])
+    dirs = e1 * (sin_t * np.cos(phi))[:, None] + e2 * (sin_t * np.sin(phi))[:, None] + xi * t[ring][:, None]
     primary = qu[ring] * qphi / TWO_PI
     return dirs, primary, qu[ring] * qphi * jac[ring]
 
@@ -351,8 +361,11 @@ def polar_rule(axis, sharpness, n_theta: int = 32, n_phi: int = 64):
     theta = np.concatenate(thetas)[:, None]
     q = np.concatenate(qs)[:, None]
     phi = (TWO_PI * (np.arange(n_phi) + 0.5) / n_phi)[None, :]
-    dirs = (e1 * (np.sin(theta) * np.cos(phi))[..., None] + e2 * (np.sin(theta) * np.sin(phi))[..., None]
-            + xi * np.broadcast_to(np.cos(theta), (theta.size, n_phi))[..., None])
+    dirs = (
+        e1 * (np.sin(theta) * np.cos(phi))[..., None]
+        + e2 * (np.sin(theta) * np.sin(phi))[..., None]
+        + xi * np.broadcast_to(np.cos(theta), (theta.size, n_phi))[..., None]
+    )
     dw = np.broadcast_to(q * (TWO_PI / n_phi), dirs.shape[:2])
     return dirs.reshape(-1, 3), dw.reshape(-1)
 
@@ -365,8 +378,16 @@ def _ggx_ring_constraints(n, e1, e2, v, ch, sh, clips) -> np.ndarray:
     coefs = np.zeros((ch.size, len(clips), 5))
     for m, c in enumerate(clips):
         C, R, S = ch * float(c @ n), sh * float(c @ e1), sh * float(c @ e2)
-        coefs[:, m] = np.stack([2 * A * C + P * R + Q * S - float(c @ v), 2 * (A * R + C * P),
-                                2 * (A * S + C * Q), P * R - Q * S, P * S + Q * R], axis=-1)
+        coefs[:, m] = np.stack(
+            [
+                2 * A * C + P * R + Q * S - float(c @ v),
+                2 * (A * R + C * P),
+                2 * (A * S + C * Q),
+                P * R - Q * S,
+                P * S + Q * R,
+            ],
+            axis=-1,
+        )
     return coefs
 
 
@@ -431,8 +452,9 @@ def ggx_rule(normal, view, roughness, n_u: int = 16, n_phi: int = 64, clips=()):
         else:
             w_edges.add(wb)
     u_e, w_e = sorted(u_edges), sorted(w_edges)
-    panels = ([("u", lo, hi) for lo, hi in zip(u_e[:-1], u_e[1:]) if hi - lo > 1e-15]
-              + [("w", lo, hi) for lo, hi in zip(w_e[:-1], w_e[1:]) if hi - lo > 1e-300])
+    panels = [("u", lo, hi) for lo, hi in zip(u_e[:-1], u_e[1:]) if hi - lo > 1e-15] + [
+        ("w", lo, hi) for lo, hi in zip(w_e[:-1], w_e[1:]) if hi - lo > 1e-300
+    ]
     cos_l, sin_l, q_l = [], [], []
     for var, lo, hi in panels:
         x, q = _gl01(n_u, lo, hi)
@@ -445,8 +467,11 @@ def ggx_rule(normal, view, roughness, n_u: int = 16, n_phi: int = 64, clips=()):
     sh = np.concatenate(sin_l)
     qu = np.concatenate(q_l)
     ring, phi, qphi = _ring_arcs(_ggx_ring_constraints(n, e1, e2, v, ch, sh, clips), n_phi)
-    h = (e1 * (sh[ring] * np.cos(phi))[:, None] + e2 * (sh[ring] * np.sin(phi))[:, None]
-         + n * ch[ring][:, None])
+    h = (
+        e1 * (sh[ring] * np.cos(phi))[:, None]
+        + e2 * (sh[ring] * np.sin(phi))[:, None]
+        + n * ch[ring][:, None]
+    )
     l = 2.0 * _dot(h, v)[:, None] * h - v
     return l, qu[ring] * qphi / TWO_PI
 
@@ -487,7 +512,8 @@ def hemisphere_rule(n_u: int = 16, n_phi: int = 64, clips=()):
     qt = np.concatenate(qs)
     st = np.sqrt(1.0 - t * t)
     ring, phi, qphi = _ring_arcs(
-        _circle_constraints(z, np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), t, st, clips), n_phi)
+        _circle_constraints(z, np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), t, st, clips), n_phi
+    )
     dirs = np.stack([st[ring] * np.cos(phi), st[ring] * np.sin(phi), t[ring]], axis=-1)
     return dirs, qt[ring] * qphi / TWO_PI
 
@@ -523,7 +549,7 @@ def integration_rule(normal, view, roughness, env=None, n: int = 16):
     dirs_list.append(d)
     prim_list.append(p)
     ggx_peak = 1.0 / (4.0 * math.pi * float(_alpha(roughness)) ** 2 * max(float(nrm @ v), 1e-6))
-    claims.append(CLAIM * ggx_peak ** 2)
+    claims.append(CLAIM * ggx_peak**2)
     d, p = hemisphere_rule(n_u=n, n_phi=4 * n, clips=clips[1:])
     dirs_list.append(d)
     prim_list.append(p)
@@ -581,8 +607,9 @@ def sg_integral(sharpness, amplitude, n_theta: int = 48) -> np.ndarray:
     return _times_amplitude(np.vectorize(one)(_f64(sharpness)), amplitude)
 
 
-def sg_inner_product(axis1, sharpness1, amplitude1, axis2, sharpness2, amplitude2,
-                     n_u: int = 48, n_phi: int = 160) -> np.ndarray:
+def sg_inner_product(
+    axis1, sharpness1, amplitude1, axis2, sharpness2, amplitude2, n_u: int = 48, n_phi: int = 160
+) -> np.ndarray:
     """``∫ G₁ G₂ dω`` by a :func:`vmf_rule` placed on the product's geometry (axis ``λ₁ξ₁ + λ₂ξ₂``
     normalised, sharpness its length; the sharper lobe if that length is below 1e-3). Only the
     node placement uses it: the integrand ``G₁ G₂`` is evaluated directly in float64, so the
@@ -637,8 +664,9 @@ def _points(normal, view, diffuse, specular, roughness):
     return p, normal, view, diffuse, specular, roughness
 
 
-def render_env(env, normal, view, diffuse, specular, roughness, n: int = 16,
-               fresnel: str = "schlick") -> np.ndarray:
+def render_env(
+    env, normal, view, diffuse, specular, roughness, n: int = 16, fresnel: str = "schlick"
+) -> np.ndarray:
     """Outgoing radiance ``∫ L(ω) f(ω, v) max(n·ω, 0) [ω_z > 0] dω`` at P points, ``(P, 3)``.
 
     ``env``: :class:`ebr_mitsuba.SGEnvironment` (world = tangent frame, z-up); ``normal``,
@@ -661,8 +689,9 @@ def render_env(env, normal, view, diffuse, specular, roughness, n: int = 16,
     return out
 
 
-def render_point(normal, view, position, light_pos, intensity, diffuse, specular, roughness,
-                 fresnel: str = "schlick") -> np.ndarray:
+def render_point(
+    normal, view, position, light_pos, intensity, diffuse, specular, roughness, fresnel: str = "schlick"
+) -> np.ndarray:
     """Radiance from an isotropic point light, ``f(l, v) I max(n·l, 0) / d²`` (exact), ``(P, 3)``.
 
     ``position``: (P, 3) surface points (world); ``light_pos``: (3,) or (P, 3); ``intensity``:

@@ -53,6 +53,7 @@ PATH_MAX_DEPTH = 2  # camera → plane → light: a plane never sees itself, one
 
 # -- loading ---------------------------------------------------------------------------------------
 
+
 def bundled_scenes() -> list[str]:
     """Names (without ``.xml``) of the scenes shipped in :mod:`ebr_mitsuba.scenes`."""
     root = importlib.resources.files("ebr_mitsuba.scenes")
@@ -77,8 +78,10 @@ def resolve_scene_path(spec: str | Path) -> Path:
         return bundled_scene(path.stem)
     if path.is_dir():
         raise InputError(f"{path}: is a directory; give a Mitsuba XML scene file")
-    raise InputError(f"{path}: no such scene file; give an existing Mitsuba XML file or a bundled "
-                     f"scene name ({', '.join(bundled_scenes())})")
+    raise InputError(
+        f"{path}: no such scene file; give an existing Mitsuba XML file or a bundled "
+        f"scene name ({', '.join(bundled_scenes())})"
+    )
 
 
 _PARSER_PREFIX = re.compile(r"^\s*\[[^\]]*\]\s*")
@@ -157,6 +160,7 @@ def _param_str(value) -> str:
 
 # -- scene-dictionary builders ----------------------------------------------------------------------
 
+
 def _resolution(res) -> tuple[int, int]:
     """``res`` as (height, width): an int is a square image."""
     if isinstance(res, (int, np.integer)):
@@ -179,9 +183,11 @@ def sensor_dict(shot: Shot, res, spp: int, seed: int = 0) -> dict:
         "fov_axis": "x",
         "near_clip": 1e-3,
         "far_clip": 1e4,
-        "to_world": mi.ScalarTransform4f().look_at(origin=list(map(float, shot.camera)),
-                                                   target=list(map(float, shot.target)),
-                                                   up=list(map(float, shot.up))),
+        "to_world": mi.ScalarTransform4f().look_at(
+            origin=list(map(float, shot.camera)),
+            target=list(map(float, shot.target)),
+            up=list(map(float, shot.up)),
+        ),
         "film": {
             "type": "hdrfilm",
             "width": w,
@@ -238,8 +244,14 @@ def sg_emitter_dict(env: SGEnvironment, scale: float = 1.0) -> dict:
     def rows(array) -> str:
         return ", ".join(" ".join(repr(float(v)) for v in np.atleast_1d(row)) for row in array)
 
-    return {"type": "sgenvmap", "id": "env", "axis": rows(env.axis), "sharpness": rows(env.sharpness),
-            "amplitude": rows(env.amplitude), "scale": float(scale)}
+    return {
+        "type": "sgenvmap",
+        "id": "env",
+        "axis": rows(env.axis),
+        "sharpness": rows(env.sharpness),
+        "amplitude": rows(env.amplitude),
+        "scale": float(scale),
+    }
 
 
 def equirect_emitter_dict(source, scale: float = 1.0) -> dict:
@@ -253,8 +265,11 @@ def equirect_emitter_dict(source, scale: float = 1.0) -> dict:
 
 def point_light_dict(position, intensity: float) -> dict:
     """An isotropic point light at ``position`` with ``intensity`` W/sr (grey)."""
-    return {"type": "point", "position": [float(v) for v in position],
-            "intensity": {"type": "rgb", "value": float(intensity)}}
+    return {
+        "type": "point",
+        "position": [float(v) for v in position],
+        "intensity": {"type": "rgb", "value": float(intensity)},
+    }
 
 
 def integrator_dict(integrator: str = "direct") -> dict:
@@ -271,8 +286,9 @@ def integrator_dict(integrator: str = "direct") -> dict:
     raise InputError(f"unknown integrator {integrator!r}; use one of {', '.join(INTEGRATORS)}")
 
 
-def shot_scene_dict(bsdf: dict, env_emitter: dict | None, shot: Shot, res, spp: int, seed: int = 0,
-                    integrator: str = "direct") -> dict:
+def shot_scene_dict(
+    bsdf: dict, env_emitter: dict | None, shot: Shot, res, spp: int, seed: int = 0, integrator: str = "direct"
+) -> dict:
     """The whole scene of one shot: sample + camera + (flash) + (environment when ``shot.env``)."""
     scene = {
         "type": "scene",

@@ -70,7 +70,9 @@ def sg_cosine_signed(axis, sharpness, amplitude, n):
     e = dr.exp(-2.0 * lam_s)
     om = -expm1(-2.0 * lam_s)  # 1 - e^{-2λ}
     big = (1.0 + e) / lam_s - om / (lam_s * lam_s)
-    small = lam * (2.0 / 3.0 + lam * (-2.0 / 3.0 + lam * (2.0 / 5.0 + lam * (-8.0 / 45.0 + lam * (4.0 / 63.0)))))  # noqa: E501
+    small = lam * (
+        2.0 / 3.0 + lam * (-2.0 / 3.0 + lam * (2.0 / 5.0 + lam * (-8.0 / 45.0 + lam * (4.0 / 63.0))))
+    )  # noqa: E501
     val = dr.select(lam < 0.15, small, big)
     return amplitude * (TWO_PI * dr.dot(n, axis) * val)
 

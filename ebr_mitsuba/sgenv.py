@@ -40,8 +40,10 @@ class SGEnvironment:
         amp = amp.reshape(-1, 3)
         k = axis.shape[0]
         if sharp.shape[0] != k or amp.shape[0] != k:
-            raise InputError(f"SG environment: {k} axes, {sharp.shape[0]} sharpness values and "
-                             f"{amp.shape[0]} amplitudes; give one of each per lobe")
+            raise InputError(
+                f"SG environment: {k} axes, {sharp.shape[0]} sharpness values and "
+                f"{amp.shape[0]} amplitudes; give one of each per lobe"
+            )
         if not (np.all(np.isfinite(axis)) and np.all(np.isfinite(sharp)) and np.all(np.isfinite(amp))):
             raise InputError("SG environment: NaN or Inf in the lobe parameters; give finite values")
         norms = np.linalg.norm(axis, axis=1)
@@ -72,9 +74,11 @@ class SGEnvironment:
         return SGEnvironment(self.axis @ rot.T, self.sharpness, self.amplitude)
 
     def concat(self, other: SGEnvironment) -> SGEnvironment:
-        return SGEnvironment(np.concatenate([self.axis, other.axis]),
-                             np.concatenate([self.sharpness, other.sharpness]),
-                             np.concatenate([self.amplitude, other.amplitude]))
+        return SGEnvironment(
+            np.concatenate([self.axis, other.axis]),
+            np.concatenate([self.sharpness, other.sharpness]),
+            np.concatenate([self.amplitude, other.amplitude]),
+        )
 
     def energy(self) -> np.ndarray:
         """Per-lobe integral ∫G dω, luminance-weighted (K,): used to pick lobes when sampling."""
@@ -103,13 +107,13 @@ class SGEnvironment:
 
     @staticmethod
     def from_json(data: dict, source: str = "env.json") -> SGEnvironment:
-        fix = f"{source}: expected {{\"format\": \"{FORMAT}\", \"up\": \"+z\", \"lobes\": [...]}}"
+        fix = f'{source}: expected {{"format": "{FORMAT}", "up": "+z", "lobes": [...]}}'
         if not isinstance(data, dict):
             raise InputError(f"{fix}; got a {type(data).__name__}")
         if data.get("format") != FORMAT:
             raise InputError(f"{source}: 'format' must be \"{FORMAT}\" (got {data.get('format')!r})")
         if data.get("up", "+z") != "+z":
-            raise InputError(f"{source}: only \"up\": \"+z\" is supported (got {data.get('up')!r})")
+            raise InputError(f'{source}: only "up": "+z" is supported (got {data.get("up")!r})')
         lobes = data.get("lobes")
         if not isinstance(lobes, list):
             raise InputError(f"{fix}; 'lobes' is missing or not a list")
@@ -121,8 +125,10 @@ class SGEnvironment:
                 m = lobe["amplitude"]
                 m = [float(m)] * 3 if isinstance(m, (int, float)) else [float(v) for v in m]
             except (KeyError, TypeError, ValueError) as exc:
-                raise InputError(f"{source}: lobe {i} needs 'axis' [x,y,z], 'sharpness' λ>0 and "
-                                 f"'amplitude' [r,g,b] ({type(exc).__name__}: {exc})") from None
+                raise InputError(
+                    f"{source}: lobe {i} needs 'axis' [x,y,z], 'sharpness' λ>0 and "
+                    f"'amplitude' [r,g,b] ({type(exc).__name__}: {exc})"
+                ) from None
             if len(a) != 3 or len(m) != 3:
                 raise InputError(f"{source}: lobe {i}: 'axis' and 'amplitude' need 3 numbers each")
             axes.append(a)
@@ -146,6 +152,8 @@ class SGEnvironment:
         try:
             data = json.loads(path.read_text())
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise InputError(f"{path}: malformed JSON ({exc.msg if hasattr(exc, 'msg') else exc}); "
-                             f"fix the file or regenerate it") from None
+            raise InputError(
+                f"{path}: malformed JSON ({exc.msg if hasattr(exc, 'msg') else exc}); "
+                f"fix the file or regenerate it"
+            ) from None
         return SGEnvironment.from_json(data, source=str(path))

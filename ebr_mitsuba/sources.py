@@ -39,14 +39,17 @@ def _int_seed(text: str, spec: str, what: str) -> int:
     try:
         seed = int(text)
     except ValueError:
-        raise InputError(f"{what} {spec!r}: seed {text!r} is not an integer; write "
-                         f"{'procedural:FAMILY:SEED' if what == 'material' else 'procedural:SEED'}") from None
+        raise InputError(
+            f"{what} {spec!r}: seed {text!r} is not an integer; write "
+            f"{'procedural:FAMILY:SEED' if what == 'material' else 'procedural:SEED'}"
+        ) from None
     if seed < 0:
         raise InputError(f"{what} {spec!r}: seed must be >= 0 (got {seed})")
     return seed
 
 
 # -- materials --------------------------------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class MaterialSource:
@@ -89,13 +92,16 @@ def parse_material(spec: str) -> MaterialSource:
 
         family = parts[1]
         if family not in FAMILIES:
-            raise InputError(f"material {spec!r}: unknown procedural family {family!r}; use one of "
-                             f"{', '.join(FAMILIES)}")
+            raise InputError(
+                f"material {spec!r}: unknown procedural family {family!r}; use one of {', '.join(FAMILIES)}"
+            )
         return MaterialSource(spec, PROCEDURAL, family=family, seed=_int_seed(parts[2], spec, "material"))
     path = Path(spec)
     if not path.exists():
-        raise InputError(f"{path}: no such material directory; give a directory with normal, diffuse, "
-                         f"specular and roughness maps, or procedural:FAMILY:SEED")
+        raise InputError(
+            f"{path}: no such material directory; give a directory with normal, diffuse, "
+            f"specular and roughness maps, or procedural:FAMILY:SEED"
+        )
     if not path.is_dir():
         raise InputError(f"{path}: is not a directory; give a material directory or procedural:FAMILY:SEED")
     return MaterialSource(spec, "directory", path=path)
@@ -108,7 +114,9 @@ def center_square(svbrdf: SVBRDF) -> SVBRDF:
         return svbrdf
     k = min(h, w)
     i, j = (h - k) // 2, (w - k) // 2
-    crop = [a[i:i + k, j:j + k] for a in (svbrdf.normal, svbrdf.diffuse, svbrdf.specular, svbrdf.roughness)]
+    crop = [
+        a[i : i + k, j : j + k] for a in (svbrdf.normal, svbrdf.diffuse, svbrdf.specular, svbrdf.roughness)
+    ]
     return SVBRDF(*crop, source=f"{svbrdf.source}+crop{k}")
 
 
@@ -124,6 +132,7 @@ def fit_to_resolution(svbrdf: SVBRDF, size: int, source: str = "material") -> SV
 
 
 # -- environments -----------------------------------------------------------------------------------
+
 
 def file_sha256(path: Path) -> str:
     digest = hashlib.sha256()
@@ -187,11 +196,14 @@ def parse_env(spec: str) -> EnvSource:
         return EnvSource(spec, "sg", path=path, sg=SGEnvironment.load(path))
     if suffix in EQUIRECT_SUFFIXES:
         if not path.is_file():
-            raise InputError(f"{path}: no such environment map; give an existing equirectangular "
-                             f".exr/.hdr file")
+            raise InputError(
+                f"{path}: no such environment map; give an existing equirectangular .exr/.hdr file"
+            )
         from .envmap import load_equirect
 
         emap = load_equirect(path)  # validates the file now, before anything is written
         return EnvSource(spec, "equirect", path=path, sha256=file_sha256(path), equirect=emap)
-    raise InputError(f"{path}: unknown environment type {suffix or '(no suffix)'!r}; give an env.json, "
-                     f"an equirectangular .exr/.hdr or procedural:SEED")
+    raise InputError(
+        f"{path}: unknown environment type {suffix or '(no suffix)'!r}; give an env.json, "
+        f"an equirectangular .exr/.hdr or procedural:SEED"
+    )

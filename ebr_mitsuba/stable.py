@@ -52,7 +52,9 @@ def one_minus_exp_neg2_over(lam):
     # Below 0.05 a series: the closed form's λ-derivative cancels two ~2/λ terms.
     lam_big = dr.select(lam < 0.05, 0.05, lam)
     big = -expm1(-2.0 * lam_big) / lam_big
-    small = 2.0 + lam * (-2.0 + lam * (4.0 / 3.0 + lam * (-2.0 / 3.0 + lam * (4.0 / 15.0 + lam * (-4.0 / 45.0)))))  # noqa: E501
+    small = 2.0 + lam * (
+        -2.0 + lam * (4.0 / 3.0 + lam * (-2.0 / 3.0 + lam * (4.0 / 15.0 + lam * (-4.0 / 45.0))))
+    )  # noqa: E501
     return dr.select(lam < 0.05, small, big)
 
 

@@ -44,8 +44,10 @@ class SVBRDF:
         shape = n.shape[:2]
         for name, arr in (("diffuse", d), ("specular", s), ("roughness", r)):
             if arr.shape[:2] != shape:
-                raise InputError(f"{src}: {name} map is {arr.shape[1]}x{arr.shape[0]} but normal is "
-                                 f"{shape[1]}x{shape[0]}; resample the maps to one size")
+                raise InputError(
+                    f"{src}: {name} map is {arr.shape[1]}x{arr.shape[0]} but normal is "
+                    f"{shape[1]}x{shape[0]}; resample the maps to one size"
+                )
         for name, arr in (("normal", n), ("diffuse", d), ("specular", s), ("roughness", r)):
             if not np.all(np.isfinite(arr)):
                 raise InputError(f"{src}: {name} map has NaN or Inf values; fix or regenerate it")
@@ -53,14 +55,19 @@ class SVBRDF:
         for name, arr in (("diffuse", d), ("specular", s), ("roughness", r)):
             lo, hi = float(arr.min()), float(arr.max())
             if lo < -tol or hi > 1 + tol:
-                raise InputError(f"{src}: {name} map has values in [{lo:.4g}, {hi:.4g}], outside [0, 1]; "
-                                 f"clip or rescale it")
+                raise InputError(
+                    f"{src}: {name} map has values in [{lo:.4g}, {hi:.4g}], outside [0, 1]; "
+                    f"clip or rescale it"
+                )
         if float(np.abs(n).max()) > 1 + 1e-3:
-            raise InputError(f"{src}: normal map has components outside [-1, 1]; decode PNG normals "
-                             f"as 2·v − 1")
+            raise InputError(
+                f"{src}: normal map has components outside [-1, 1]; decode PNG normals as 2·v − 1"
+            )
         if float(n[..., 2].min()) < 0:
-            raise InputError(f"{src}: normal map has normals pointing into the surface (z < 0); "
-                             f"check the normal convention (OpenGL/DirectX)")
+            raise InputError(
+                f"{src}: normal map has normals pointing into the surface (z < 0); "
+                f"check the normal convention (OpenGL/DirectX)"
+            )
         length = np.linalg.norm(n, axis=-1, keepdims=True)
         if float(length.min()) < 1e-6:
             raise InputError(f"{src}: normal map has zero-length normals; fix the map")
@@ -77,13 +84,23 @@ class SVBRDF:
         return int(self.normal.shape[0]), int(self.normal.shape[1])
 
     @staticmethod
-    def uniform(height: int, width: int, diffuse=EXEMPLAR_DIFFUSE, specular=EXEMPLAR_SPECULAR, roughness=0.5,
-                normal=(0, 0, 1)):
+    def uniform(
+        height: int,
+        width: int,
+        diffuse=EXEMPLAR_DIFFUSE,
+        specular=EXEMPLAR_SPECULAR,
+        roughness=0.5,
+        normal=(0, 0, 1),
+    ):
         """A spatially constant material (by default the exemplar material of
         :mod:`ebr_mitsuba.exemplar`, roughness 0.5)."""
+
         def rgb(v):
-            return np.broadcast_to(np.asarray(v, np.float32).reshape(-1)[:3] if np.ndim(v) else
-                                   np.full(3, v, np.float32), (height, width, 3)).copy()
+            return np.broadcast_to(
+                np.asarray(v, np.float32).reshape(-1)[:3] if np.ndim(v) else np.full(3, v, np.float32),
+                (height, width, 3),
+            ).copy()
+
         return SVBRDF(
             normal=np.broadcast_to(np.asarray(normal, np.float32), (height, width, 3)).copy(),
             diffuse=rgb(diffuse),

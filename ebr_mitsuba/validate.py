@@ -63,8 +63,18 @@ class Case:
         return float(self.budgets.get(check, DEFAULT_BUDGETS[check]))
 
 
-_CASE_KEYS = {"name", "scene", "params", "view_deg", "view_azimuth_deg", "points", "checks", "budgets",
-              "quadrature_spp", "note"}
+_CASE_KEYS = {
+    "name",
+    "scene",
+    "params",
+    "view_deg",
+    "view_azimuth_deg",
+    "points",
+    "checks",
+    "budgets",
+    "quadrature_spp",
+    "note",
+}
 
 
 def bundled_cases_file() -> Path:
@@ -93,33 +103,39 @@ def load_cases(path: Path | None = None) -> list[Case]:
         bad = [c for c in checks if c not in CHECKS]
         if bad:
             raise ConfigError(f"{path}: case {entry['name']}: unknown check(s) {bad}; use {list(CHECKS)}")
-        cases.append(Case(
-            name=str(entry["name"]), scene=(path.parent / entry["scene"]).resolve(),
-            params={k: str(v) for k, v in entry.get("params", {}).items()},
-            view_deg=float(entry.get("view_deg", 30.0)),
-            view_azimuth_deg=float(entry.get("view_azimuth_deg", 20.0)),
-            points=int(entry.get("points", 48)), checks=checks,
-            budgets=dict(entry.get("budgets", {})), quadrature_spp=int(entry.get("quadrature_spp", 256)),
-            note=str(entry.get("note", "")),
-        ))
+        cases.append(
+            Case(
+                name=str(entry["name"]),
+                scene=(path.parent / entry["scene"]).resolve(),
+                params={k: str(v) for k, v in entry.get("params", {}).items()},
+                view_deg=float(entry.get("view_deg", 30.0)),
+                view_azimuth_deg=float(entry.get("view_azimuth_deg", 20.0)),
+                points=int(entry.get("points", 48)),
+                checks=checks,
+                budgets=dict(entry.get("budgets", {})),
+                quadrature_spp=int(entry.get("quadrature_spp", 256)),
+                note=str(entry.get("note", "")),
+            )
+        )
     return cases
 
 
 # -- scene contents -----------------------------------------------------------------------------
 
+
 @dataclass(frozen=True)
 class PlaneScene:
     """What a validation scene contains, read back from Mitsuba (numpy, world z-up)."""
 
-    normal: np.ndarray      # (3,)
-    diffuse: np.ndarray     # (3,)
-    specular: np.ndarray    # (3,)
+    normal: np.ndarray  # (3,)
+    diffuse: np.ndarray  # (3,)
+    specular: np.ndarray  # (3,)
     roughness: float
-    axis: np.ndarray        # (K, 3)
-    sharpness: np.ndarray   # (K,)
-    amplitude: np.ndarray   # (K, 3), env scale applied
+    axis: np.ndarray  # (K, 3)
+    sharpness: np.ndarray  # (K,)
+    amplitude: np.ndarray  # (K, 3), env scale applied
     light: np.ndarray | None  # (3,) or None
-    intensity: np.ndarray   # (3,)
+    intensity: np.ndarray  # (3,)
 
 
 def read_plane_scene(scene, source: str) -> PlaneScene:
@@ -129,8 +145,10 @@ def read_plane_scene(scene, source: str) -> PlaneScene:
 
     def get(key, n):
         if key not in p:
-            raise InputError(f"{source}: validation needs parameter '{key}' (a constant-map 'svbrdf' on a "
-                             f"shape with id 'sample', an 'sgenvmap' with id 'env', a point light 'light')")
+            raise InputError(
+                f"{source}: validation needs parameter '{key}' (a constant-map 'svbrdf' on a "
+                f"shape with id 'sample', an 'sgenvmap' with id 'env', a point light 'light')"
+            )
         return np.array(p[key], dtype=np.float64).reshape(-1)[:n] if n else np.array(p[key], dtype=np.float64)
 
     k_axis = np.array(p["env.axis"], dtype=np.float64).reshape(-1, 3) if "env.axis" in p else None
@@ -148,7 +166,8 @@ def read_plane_scene(scene, source: str) -> PlaneScene:
         axis=k_axis,
         sharpness=np.array(p["env.sharpness"], dtype=np.float64).reshape(-1),
         amplitude=np.array(p["env.amplitude"], dtype=np.float64).reshape(-1, 3) * scale,
-        light=light, intensity=intensity,
+        light=light,
+        intensity=intensity,
     )
 
 
@@ -186,8 +205,15 @@ def fast_radiance(scene: PlaneScene, pts: np.ndarray, cams: np.ndarray, mode: st
 
     n = perturbed_normal(vec(scene.normal))
     rough = mi.Float(np.full(count, scene.roughness, np.float32))
-    sp = ShadingPoints(n, vec(v), vec(scene.diffuse, mi.Color3f), vec(scene.specular, mi.Color3f),
-                       rough, dr.arange(mi.UInt32, count), count)
+    sp = ShadingPoints(
+        n,
+        vec(v),
+        vec(scene.diffuse, mi.Color3f),
+        vec(scene.specular, mi.Color3f),
+        rough,
+        dr.arange(mi.UInt32, count),
+        count,
+    )
     total = dr.zeros(mi.Color3f, count)
     if scene.axis.shape[0] > 0:
         lobes = DrLobes.from_numpy(scene.axis, scene.sharpness, scene.amplitude)
@@ -200,8 +226,9 @@ def fast_radiance(scene: PlaneScene, pts: np.ndarray, cams: np.ndarray, mode: st
 
             total = total + quadrature_environment(sp, lobes, spp=spp)
     if scene.light is not None and float(np.max(scene.intensity)) > 0:
-        total = total + point_light(sp, vec(pts), mi.Vector3f(*map(float, scene.light)),
-                                    mi.Color3f(*map(float, scene.intensity)))
+        total = total + point_light(
+            sp, vec(pts), mi.Vector3f(*map(float, scene.light)), mi.Color3f(*map(float, scene.intensity))
+        )
     return np.array(total, dtype=np.float64).T
 
 
@@ -218,25 +245,39 @@ def _builtin_bsdf(scene: PlaneScene) -> dict:
         "type": "normalmap",
         "flip_invalid_normals": False,
         "use_shadowing_function": False,
-        "normalmap": {"type": "bitmap", "raw": True, "filter_type": "nearest",
-                      "data": mi.TensorXf(normal_texels)},
+        "normalmap": {
+            "type": "bitmap",
+            "raw": True,
+            "filter_type": "nearest",
+            "data": mi.TensorXf(normal_texels),
+        },
         "bsdf": {
             "type": "blendbsdf",
             "weight": 0.5,
-            "bsdf_0": {"type": "diffuse",
-                       "reflectance": {"type": "rgb", "value": (2 * scene.diffuse).tolist()}},
-            "bsdf_1": {"type": "roughconductor", "distribution": "ggx", "alpha": r * r, "material": "none",
-                       "specular_reflectance": {"type": "rgb", "value": (2 * scene.specular).tolist()}},
+            "bsdf_0": {
+                "type": "diffuse",
+                "reflectance": {"type": "rgb", "value": (2 * scene.diffuse).tolist()},
+            },
+            "bsdf_1": {
+                "type": "roughconductor",
+                "distribution": "ggx",
+                "alpha": r * r,
+                "material": "none",
+                "specular_reflectance": {"type": "rgb", "value": (2 * scene.specular).tolist()},
+            },
         },
     }
 
 
 def _our_bsdf(scene: PlaneScene, fresnel: str) -> dict:
-    return {"type": "svbrdf", "fresnel": fresnel,
-            "normal": {"type": "rgb", "value": scene.normal.tolist()},
-            "diffuse": {"type": "rgb", "value": scene.diffuse.tolist()},
-            "specular": {"type": "rgb", "value": scene.specular.tolist()},
-            "roughness": float(scene.roughness)}
+    return {
+        "type": "svbrdf",
+        "fresnel": fresnel,
+        "normal": {"type": "rgb", "value": scene.normal.tolist()},
+        "diffuse": {"type": "rgb", "value": scene.diffuse.tolist()},
+        "specular": {"type": "rgb", "value": scene.specular.tolist()},
+        "roughness": float(scene.roughness),
+    }
 
 
 def _env_dicts(scene: PlaneScene, res: int = 1024) -> tuple[dict, dict]:
@@ -251,8 +292,11 @@ def _env_dicts(scene: PlaneScene, res: int = 1024) -> tuple[dict, dict]:
 def _scene_dict(bsdf: dict, emitter: dict, scene: PlaneScene) -> dict:
     d = {"type": "scene", "sample": {"type": "rectangle", "bsdf": bsdf}, "env": emitter}
     if scene.light is not None and float(np.max(scene.intensity)) > 0:
-        d["light"] = {"type": "point", "position": scene.light.tolist(),
-                      "intensity": {"type": "rgb", "value": scene.intensity.tolist()}}
+        d["light"] = {
+            "type": "point",
+            "position": scene.light.tolist(),
+            "intensity": {"type": "rgb", "value": scene.intensity.tolist()},
+        }
     return d
 
 
@@ -264,10 +308,18 @@ def _row(name, reference, a, b_est, noise, budget, seconds, extra=None) -> dict:
     tol = 3.0 * noise + budget
     # Systematic part of the difference: what remains after removing the expected noise energy.
     excess = math.sqrt(max(rel * rel - noise * noise, 0.0)) if finite else float("inf")
-    row = {"name": name, "reference": reference, "rel_rmse": rel, "excess": excess,
-           "max_abs": float(np.max(np.abs(diff))) if finite else float("inf"),
-           "tolerance": tol, "noise": noise, "budget": budget,
-           "passed": bool(finite and rel <= tol), "seconds": seconds}
+    row = {
+        "name": name,
+        "reference": reference,
+        "rel_rmse": rel,
+        "excess": excess,
+        "max_abs": float(np.max(np.abs(diff))) if finite else float("inf"),
+        "tolerance": tol,
+        "noise": noise,
+        "budget": budget,
+        "passed": bool(finite and rel <= tol),
+        "seconds": seconds,
+    }
     if extra:
         row.update(extra)
     return row
@@ -296,9 +348,18 @@ def run_case(case: Case, spp: int = DEFAULT_SPP, seed: int = 0) -> list[dict]:
             mode = check.split("-", 1)[1]
             a = fast_radiance(plane, pts, cams, "sg" if mode == "sg" else "quadrature", case.quadrature_spp)
             label = f"mitsuba path, {spp} spp"
-            rows.append(_row(f"{case.name}/{check}", label, a, ref.mean, ref.relative_noise(),
-                             case.budget(check), time.perf_counter() - t1 + t_ref,
-                             {"mode": mode, "spp_fast": case.quadrature_spp if mode != "sg" else None}))
+            rows.append(
+                _row(
+                    f"{case.name}/{check}",
+                    label,
+                    a,
+                    ref.mean,
+                    ref.relative_noise(),
+                    case.budget(check),
+                    time.perf_counter() - t1 + t_ref,
+                    {"mode": mode, "spp_fast": case.quadrature_spp if mode != "sg" else None},
+                )
+            )
         else:
             sg_emitter, envmap_emitter = _env_dicts(plane)
             if check == "builtin-bsdf":
@@ -313,8 +374,17 @@ def run_case(case: Case, spp: int = DEFAULT_SPP, seed: int = 0) -> list[dict]:
             ea = trace(ours, cams, dirs, spp=spp, seed=seed + 1)
             eb = trace(theirs, cams, dirs, spp=spp, seed=seed + 2)
             noise = math.hypot(ea.relative_noise(), eb.relative_noise())
-            rows.append(_row(f"{case.name}/{check}", label, ea.mean, eb.mean, noise, case.budget(check),
-                             time.perf_counter() - t1))
+            rows.append(
+                _row(
+                    f"{case.name}/{check}",
+                    label,
+                    ea.mean,
+                    eb.mean,
+                    noise,
+                    case.budget(check),
+                    time.perf_counter() - t1,
+                )
+            )
     return rows
 
 

@@ -68,11 +68,14 @@ def ensure_variant(variant: str | None = None) -> str:
         source = "" if variant or current else " (from $EBR_VARIANT)"
         raise RuntimeSetupError(f"unsupported variant '{want}'{source}; use llvm_ad_rgb or cuda_ad_rgb")
     if want not in mi.variants():
-        raise RuntimeSetupError(f"Mitsuba variant '{want}' is not compiled into this Mitsuba build; "
-                                f"use {DEFAULT_VARIANT}")
+        raise RuntimeSetupError(
+            f"Mitsuba variant '{want}' is not compiled into this Mitsuba build; use {DEFAULT_VARIANT}"
+        )
     if want.startswith("cuda") and want != current and not cuda_available():
-        raise RuntimeSetupError(f"variant '{want}': no CUDA device (Dr.Jit found no CUDA driver or GPU); "
-                                f"use {DEFAULT_VARIANT} on this machine")
+        raise RuntimeSetupError(
+            f"variant '{want}': no CUDA device (Dr.Jit found no CUDA driver or GPU); "
+            f"use {DEFAULT_VARIANT} on this machine"
+        )
     if want.startswith("llvm"):
         _check_llvm()
     if current != want:

@@ -45,8 +45,10 @@ def _parse_rows(text: str, width: int, name: str) -> np.ndarray:
         except ValueError:
             raise ConfigError(f"sgenvmap: '{name}' lobe {i} is {' '.join(row)!r}; give numbers") from None
         if len(numbers) != width:
-            raise ConfigError(f"sgenvmap: '{name}' lobe {i} has {len(numbers)} numbers, expected "
-                              f"{width} (lobes are separated by commas)")
+            raise ConfigError(
+                f"sgenvmap: '{name}' lobe {i} has {len(numbers)} numbers, expected "
+                f"{width} (lobes are separated by commas)"
+            )
         out.append(numbers)
     return np.asarray(out, dtype=np.float64).reshape(-1, width)
 
@@ -60,8 +62,9 @@ def _inline_array(props, name: str, width: int) -> np.ndarray:
     try:
         arr = np.asarray(value.numpy() if hasattr(value, "numpy") else value, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ConfigError(f"sgenvmap: '{name}' must be a string or a mi.TensorXf; got "
-                          f"{type(value).__name__}") from None
+        raise ConfigError(
+            f"sgenvmap: '{name}' must be a string or a mi.TensorXf; got {type(value).__name__}"
+        ) from None
     if arr.size % width:
         raise ConfigError(f"sgenvmap: '{name}' holds {arr.size} values, not a multiple of {width}")
     return arr.reshape(-1, width)
@@ -73,14 +76,17 @@ def environment_from_properties(props) -> SGEnvironment:
     inline = [k for k in ("axis", "sharpness", "amplitude") if k in props]
     if "filename" in props:
         if inline:
-            raise ConfigError(f"sgenvmap: give either 'filename' or inline lobes, not both "
-                              f"(remove {', '.join(inline)})")
+            raise ConfigError(
+                f"sgenvmap: give either 'filename' or inline lobes, not both (remove {', '.join(inline)})"
+            )
         path = str(mi.file_resolver().resolve(str(props["filename"])))
         return SGEnvironment.load(path)
     if len(inline) != 3:
         missing = [k for k in ("axis", "sharpness", "amplitude") if k not in inline]
-        raise ConfigError(f"sgenvmap: needs 'filename' (an env.json) or all of axis/sharpness/"
-                          f"amplitude; missing {', '.join(missing)}")
+        raise ConfigError(
+            f"sgenvmap: needs 'filename' (an env.json) or all of axis/sharpness/"
+            f"amplitude; missing {', '.join(missing)}"
+        )
     axis = _inline_array(props, "axis", 3)
     sharp = _inline_array(props, "sharpness", 1)[:, 0]
     amp = _inline_array(props, "amplitude", 3)
@@ -220,8 +226,10 @@ class SGEnvMap(mi.Emitter):
     def parameters_changed(self, keys=None):
         k = dr.width(self.sharpness)
         if dr.width(self.axis) != 3 * k or dr.width(self.amplitude) != 3 * k:
-            raise InputError(f"sgenvmap: {k} sharpness values need 3·{k} axis and amplitude values; "
-                             f"got {dr.width(self.axis)} and {dr.width(self.amplitude)}")
+            raise InputError(
+                f"sgenvmap: {k} sharpness values need 3·{k} axis and amplitude values; "
+                f"got {dr.width(self.axis)} and {dr.width(self.amplitude)}"
+            )
         if dr.width(self.scale) != 1:
             raise InputError(f"sgenvmap: 'scale' must hold one value, got {dr.width(self.scale)}")
         scale = float(self.scale.numpy()[0])
@@ -239,8 +247,10 @@ class SGEnvMap(mi.Emitter):
         if not (np.all(np.isfinite(lam)) and np.all(np.isfinite(amp)) and np.all(np.isfinite(axis))):
             raise InputError("sgenvmap: NaN or Inf in the lobe parameters; check the optimiser step")
         if np.any(lam <= 0) or np.any(amp < 0):
-            raise InputError("sgenvmap: sharpness must be > 0 and amplitudes >= 0; clamp the "
-                             "parameters after each optimiser step (e.g. dr.maximum(x, 1e-4))")
+            raise InputError(
+                "sgenvmap: sharpness must be > 0 and amplitudes >= 0; clamp the "
+                "parameters after each optimiser step (e.g. dr.maximum(x, 1e-4))"
+            )
         if np.any(np.linalg.norm(axis, axis=1) < 1e-12):
             raise InputError("sgenvmap: a lobe axis has zero length; give non-zero axes")
         index = dr.arange(mi.UInt32, k)

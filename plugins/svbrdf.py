@@ -124,8 +124,9 @@ class SVBRDFBSDF(mi.BSDF):
         self.roughness = props.get_texture("roughness", DEFAULT_ROUGHNESS)
         self.fresnel = str(props.get("fresnel", "schlick"))
         if self.fresnel not in brdf.FRESNEL_MODES:
-            raise ConfigError(f"svbrdf: 'fresnel' is {self.fresnel!r}; use one of "
-                              f"{', '.join(brdf.FRESNEL_MODES)}")
+            raise ConfigError(
+                f"svbrdf: 'fresnel' is {self.fresnel!r}; use one of {', '.join(brdf.FRESNEL_MODES)}"
+            )
         base = mi.BSDFFlags.FrontSide | mi.BSDFFlags.SpatiallyVarying
         glossy = mi.BSDFFlags.GlossyReflection | base
         diffuse = mi.BSDFFlags.DiffuseReflection | base
@@ -189,18 +190,19 @@ class SVBRDFBSDF(mi.BSDF):
         bs.wo = wo
         bs.pdf = dr.select(ok, pdf, 0.0)
         bs.eta = 1.0
-        bs.sampled_type = dr.select(glossy, mi.UInt32(int(mi.BSDFFlags.GlossyReflection)),
-                                    mi.UInt32(int(mi.BSDFFlags.DiffuseReflection)))
-        bs.sampled_component = dr.select(glossy, mi.UInt32(COMPONENT_GLOSSY),
-                                         mi.UInt32(COMPONENT_DIFFUSE))
+        bs.sampled_type = dr.select(
+            glossy,
+            mi.UInt32(int(mi.BSDFFlags.GlossyReflection)),
+            mi.UInt32(int(mi.BSDFFlags.DiffuseReflection)),
+        )
+        bs.sampled_component = dr.select(glossy, mi.UInt32(COMPONENT_GLOSSY), mi.UInt32(COMPONENT_DIFFUSE))
         return bs, dr.select(ok, weight, 0.0)
 
     def eval_diffuse_reflectance(self, si, active=True):
         return self.diffuse.eval(si, active)
 
     def to_string(self):
-        return (f"SVBRDF[normal={'map' if self.normal is not None else 'flat'}, "
-                f"fresnel={self.fresnel}]")
+        return f"SVBRDF[normal={'map' if self.normal is not None else 'flat'}, fresnel={self.fresnel}]"
 
 
 def register() -> None:

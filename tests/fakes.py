@@ -56,13 +56,16 @@ def write_pair(folder: Path, seed: int, lobes=(SUN,), grid: int = GRID) -> Path:
     from ebr_mitsuba.sgenv import SGEnvironment
     from ebr_mitsuba.svbrdf import SVBRDF
 
-    env = SGEnvironment(np.array([l[0] for l in lobes]), np.array([l[1] for l in lobes]),
-                        np.array([l[2] for l in lobes]))
+    env = SGEnvironment(
+        np.array([l[0] for l in lobes]), np.array([l[1] for l in lobes]), np.array([l[2] for l in lobes])
+    )
     rng = np.random.default_rng(seed)
-    mat = SVBRDF(normal=np.broadcast_to(np.float32([0, 0, 1]), (grid, grid, 3)).copy(),
-                 diffuse=(0.2 + 0.5 * rng.random((grid, grid, 3))).astype(np.float32),
-                 specular=np.full((grid, grid, 3), 0.05, np.float32),
-                 roughness=np.full((grid, grid), 0.4, np.float32))
+    mat = SVBRDF(
+        normal=np.broadcast_to(np.float32([0, 0, 1]), (grid, grid, 3)).copy(),
+        diffuse=(0.2 + 0.5 * rng.random((grid, grid, 3))).astype(np.float32),
+        specular=np.full((grid, grid, 3), 0.05, np.float32),
+        roughness=np.full((grid, grid), 0.4, np.float32),
+    )
     for shot in (near_shot(True), near_shot(False)):
         write_exr(Path(folder) / f"{shot.name}.exr", render_numpy(mat, env, shot))
     return Path(folder)

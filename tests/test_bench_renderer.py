@@ -56,8 +56,10 @@ def test_measured_rows_cover_the_grid():
 
 
 def _rows(errors_by_key):
-    return [{"group": g, "bucket": b, "view": v, "env": "e", "material": "m", "ref_noise": 0.001, "errors": e}
-            for (g, b, v), e in errors_by_key.items()]
+    return [
+        {"group": g, "bucket": b, "view": v, "env": "e", "material": "m", "ref_noise": 0.001, "errors": e}
+        for (g, b, v), e in errors_by_key.items()
+    ]
 
 
 def test_cheapest_and_advice_follow_the_numbers():
@@ -67,10 +69,12 @@ def test_cheapest_and_advice_follow_the_numbers():
     errs = {"sg": 0.3, "quadrature 64": 0.01, "mitsuba 1024": 0.001}
     assert bench.cheapest(errs, times, 0.02) == "quadrature 64"
     assert bench.cheapest({"sg": 0.3, "quadrature 64": 0.3, "mitsuba 1024": 0.3}, times, 0.02) is None
-    rows = _rows({
-        ("exemplar", "0.05", 0.0): {"sg": 0.004, "quadrature 64": 0.01, "mitsuba 1024": 0.015},
-        ("exemplar", "0.9", 80.0): {"sg": 0.40, "quadrature 64": 0.03, "mitsuba 1024": 0.015},
-    })
+    rows = _rows(
+        {
+            ("exemplar", "0.05", 0.0): {"sg": 0.004, "quadrature 64": 0.01, "mitsuba 1024": 0.015},
+            ("exemplar", "0.9", 80.0): {"sg": 0.40, "quadrature 64": 0.03, "mitsuba 1024": 0.015},
+        }
+    )
     text = "\n".join(bench.advice(rows, labels, times, targets=(0.02, 0.05)))
     assert "**sg** (1 s/Mpx) is the cheapest for exemplar r=0.05 (0°)" in text
     assert "**mitsuba 1024** (50 s/Mpx) is the cheapest for exemplar r=0.9 (80°)" in text

@@ -27,21 +27,28 @@ def default_env() -> SGEnvironment:
 
 def _flat(diffuse, specular=0.0, roughness=0.5) -> SVBRDF:
     h, w = np.shape(diffuse)[:2]
-    return SVBRDF(normal=np.tile(np.float32([0, 0, 1]), (h, w, 1)), diffuse=diffuse,
-                  specular=np.broadcast_to(np.float32(specular), (h, w, 3)).copy(),
-                  roughness=np.broadcast_to(np.float32(roughness), (h, w)).copy())
+    return SVBRDF(
+        normal=np.tile(np.float32([0, 0, 1]), (h, w, 1)),
+        diffuse=diffuse,
+        specular=np.broadcast_to(np.float32(specular), (h, w, 3)).copy(),
+        roughness=np.broadcast_to(np.float32(roughness), (h, w)).copy(),
+    )
 
 
 def _textured(rng, size) -> SVBRDF:
     """A spatially varying material with tilted normals, for the decomposition test."""
     slope = rng.uniform(-0.3, 0.3, (size, size, 2))
     normal = np.concatenate([slope, np.ones((size, size, 1))], axis=-1)
-    return SVBRDF(normal=normal, diffuse=rng.uniform(0.05, 0.8, (size, size, 3)),
-                  specular=rng.uniform(0.02, 0.3, (size, size, 3)),
-                  roughness=rng.uniform(0.15, 0.8, (size, size)))
+    return SVBRDF(
+        normal=normal,
+        diffuse=rng.uniform(0.05, 0.8, (size, size, 3)),
+        specular=rng.uniform(0.02, 0.3, (size, size, 3)),
+        roughness=rng.uniform(0.15, 0.8, (size, size)),
+    )
 
 
 # -- pixel ↔ surface mapping -----------------------------------------------------------------
+
 
 def test_bright_quadrant_lands_where_design_says():
     """A diffuse map bright only in its top-left quadrant (rows < H/2, columns < W/2), lit by the
@@ -88,6 +95,7 @@ def test_flash_only_radiance_is_inverse_square_lambertian():
 
 
 # -- flash − noflash = flash-only -------------------------------------------------------------
+
 
 def test_flash_minus_noflash_is_flash_only(rng, default_env):
     """r = flash − noflash − flashonly has zero mean; its spread is Monte-Carlo noise.
@@ -186,8 +194,9 @@ def test_five_light_ignores_environment(tmp_path, rng, default_env):
     from ebr_mitsuba.imageio import read_exr
 
     for shot in a["shots"]:
-        np.testing.assert_array_equal(read_exr(tmp_path / "a" / shot["file"]),
-                                      read_exr(tmp_path / "b" / shot["file"]))
+        np.testing.assert_array_equal(
+            read_exr(tmp_path / "a" / shot["file"]), read_exr(tmp_path / "b" / shot["file"])
+        )
     assert b["env"] is None and not (tmp_path / "b" / "env.json").exists()
 
 
@@ -275,8 +284,8 @@ def test_shot_seeds_differ_and_are_stable():
     assert shot_seed(1, 0) != shot_seed(0, 0)
 
 
-
 # -- bundled XML scenes against the scene-dict builders ---------------------------------------------
+
 
 def _checkerboard_material(res: int, checks: int = 4) -> SVBRDF:
     """The material of the bundled near/far scenes as maps: Mitsuba's checkerboard gives color0

@@ -15,8 +15,14 @@ PROBE = "tests/test_cli.py::test_no_command_and_unknown_command"
 def _pytest(**env) -> subprocess.CompletedProcess:
     environ = {k: v for k, v in os.environ.items() if k != "EBR_REQUIRE_VARIANT"}
     environ.update(env, EBR_VARIANT="scalar_rgb")  # a variant ebr refuses: no usable variant
-    return subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", PROBE],
-                          cwd=ROOT, env=environ, capture_output=True, text=True, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", PROBE],
+        cwd=ROOT,
+        env=environ,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
 
 
 def test_no_variant_skips_locally_and_fails_under_ci():

@@ -40,6 +40,7 @@ def assert_bad_input(code: int, err: str, name: str, tmp_path: Path, before: set
 
 # -- ebr render -------------------------------------------------------------------------------------
 
+
 def test_bundled_scene_list():
     assert set(BUNDLED) <= set(bundled_scenes())
 
@@ -49,8 +50,9 @@ def test_render_bundled_scene(tmp_path, capsys, name):
     from ebr_mitsuba.imageio import read_exr
 
     out = tmp_path / f"{name}.exr"
-    code, stdout, err = run_cli(capsys, "render", bundled_scene(name), "--out", out, "--spp", 2,
-                                "-D", "res=8", "--json")
+    code, stdout, err = run_cli(
+        capsys, "render", bundled_scene(name), "--out", out, "--spp", 2, "-D", "res=8", "--json"
+    )
     assert code == 0, err
     summary = json.loads(stdout)
     assert set(summary) >= {"out", "seconds", "spp", "resolution", "variant"}
@@ -65,8 +67,19 @@ def test_render_parameters_change_the_image(tmp_path, capsys):
     from ebr_mitsuba.imageio import read_exr
 
     for r in ("0.1", "0.9"):
-        code, _, err = run_cli(capsys, "render", "exemplar", "--out", tmp_path / f"r{r}.exr",
-                               "-D", "res=8", "-D", "spp=4", "-D", f"roughness={r}")
+        code, _, err = run_cli(
+            capsys,
+            "render",
+            "exemplar",
+            "--out",
+            tmp_path / f"r{r}.exr",
+            "-D",
+            "res=8",
+            "-D",
+            "spp=4",
+            "-D",
+            f"roughness={r}",
+        )
         assert code == 0, err
     assert not np.allclose(read_exr(tmp_path / "r0.1.exr"), read_exr(tmp_path / "r0.9.exr"))
 
@@ -75,8 +88,22 @@ def test_render_same_seed_same_image(tmp_path, capsys):
     from ebr_mitsuba.imageio import read_exr
 
     for name in ("a", "b"):
-        assert run_cli(capsys, "render", "near_flash", "--out", tmp_path / f"{name}.exr", "--spp", 2,
-                       "-D", "res=8", "--seed", 5)[0] == 0
+        assert (
+            run_cli(
+                capsys,
+                "render",
+                "near_flash",
+                "--out",
+                tmp_path / f"{name}.exr",
+                "--spp",
+                2,
+                "-D",
+                "res=8",
+                "--seed",
+                5,
+            )[0]
+            == 0
+        )
     np.testing.assert_array_equal(read_exr(tmp_path / "a.exr"), read_exr(tmp_path / "b.exr"))
 
 
@@ -101,12 +128,18 @@ def test_render_missing_scene(tmp_path, capsys):
     assert_bad_input(code, err, "missing.xml", tmp_path, before)
 
 
-@pytest.mark.parametrize("text, words", [
-    ('<scene version="3.0.0"><shape type="rectangle"></scene>', "mismatch"),
-    ('<scene version="3.0.0"><shape type="nosuchplugin"/></scene>', "nosuchplugin"),
-    ('<scene version="3.0.0"><emitter type="sgenvmap"><string name="filename" value="nope.json"/>'
-     '</emitter></scene>', "nope.json"),
-])
+@pytest.mark.parametrize(
+    "text, words",
+    [
+        ('<scene version="3.0.0"><shape type="rectangle"></scene>', "mismatch"),
+        ('<scene version="3.0.0"><shape type="nosuchplugin"/></scene>', "nosuchplugin"),
+        (
+            '<scene version="3.0.0"><emitter type="sgenvmap"><string name="filename" value="nope.json"/>'
+            "</emitter></scene>",
+            "nope.json",
+        ),
+    ],
+)
 def test_render_bad_scene_file(tmp_path, capsys, text, words):
     scene = tmp_path / "bad.xml"
     scene.write_text(text)
@@ -124,17 +157,39 @@ def test_render_output_must_be_exr(tmp_path, capsys):
 
 # -- ebr capture ------------------------------------------------------------------------------------
 
+
 def test_capture_cli_procedural(tmp_path, capsys):
     out = tmp_path / "cap"
-    code, stdout, err = run_cli(capsys, "capture", "--material", "procedural:wood:3", "--env",
-                                "procedural:5", "--setup", "near", "--out", out, "--res", 16, "--spp", 2,
-                                "--seed", 1, "--json")
+    code, stdout, err = run_cli(
+        capsys,
+        "capture",
+        "--material",
+        "procedural:wood:3",
+        "--env",
+        "procedural:5",
+        "--setup",
+        "near",
+        "--out",
+        out,
+        "--res",
+        16,
+        "--spp",
+        2,
+        "--seed",
+        1,
+        "--json",
+    )
     assert code == 0, err
     summary = json.loads(stdout)
     assert summary["files"][:2] == ["flash.exr", "noflash.exr"] and summary["resolution"] == [16, 16]
     meta = json.loads((out / "capture.json").read_text())
-    assert meta["material"] == {"spec": "procedural:wood:3", "kind": "procedural", "family": "wood",
-                                "seed": 3, "maps": "maps"}
+    assert meta["material"] == {
+        "spec": "procedural:wood:3",
+        "kind": "procedural",
+        "family": "wood",
+        "seed": 3,
+        "maps": "maps",
+    }
     assert meta["env"]["spec"] == "procedural:5" and meta["env"]["seed"] == 5
     assert (out / "maps" / "normal.exr").is_file() and (out / "env.json").is_file()
 
@@ -147,9 +202,22 @@ def test_capture_cli_material_dir(tmp_path, capsys):
     src = make_material("tiles", 2, 32)
     save_material_dir(src, tmp_path / "mat")
     out = tmp_path / "cap"
-    code, _, err = run_cli(capsys, "capture", "--material", tmp_path / "mat", "--env",
-                           bundled_scene("default").with_name("default_env.json"), "--setup", "near",
-                           "--out", out, "--res", 16, "--spp", 1)
+    code, _, err = run_cli(
+        capsys,
+        "capture",
+        "--material",
+        tmp_path / "mat",
+        "--env",
+        bundled_scene("default").with_name("default_env.json"),
+        "--setup",
+        "near",
+        "--out",
+        out,
+        "--res",
+        16,
+        "--spp",
+        1,
+    )
     assert code == 0, err
     gt = load_material_dir(out / "maps")
     expected = src.diffuse.reshape(16, 2, 16, 2, 3).mean(axis=(1, 3))
@@ -157,8 +225,14 @@ def test_capture_cli_material_dir(tmp_path, capsys):
 
 
 def _capture_args(tmp_path, **over):
-    args = {"--material": "procedural:wood:1", "--env": "procedural:1", "--setup": "near",
-            "--out": tmp_path / "cap", "--res": 8, "--spp": 1}
+    args = {
+        "--material": "procedural:wood:1",
+        "--env": "procedural:1",
+        "--setup": "near",
+        "--out": tmp_path / "cap",
+        "--res": 8,
+        "--spp": 1,
+    }
     args.update(over)
     return ["capture"] + [str(v) for kv in args.items() for v in kv]
 
@@ -181,8 +255,14 @@ def test_capture_missing_equirect_file(tmp_path, capsys):
     assert_bad_input(code, err, "sky.hdr", tmp_path, before)
 
 
-@pytest.mark.parametrize("text", ['{"format": "ebr-sg/1", "lobes": [', '{"format": "other"}',
-                                  '{"format": "ebr-sg/1", "lobes": [{"axis": [0, 0, 1]}]}'])
+@pytest.mark.parametrize(
+    "text",
+    [
+        '{"format": "ebr-sg/1", "lobes": [',
+        '{"format": "other"}',
+        '{"format": "ebr-sg/1", "lobes": [{"axis": [0, 0, 1]}]}',
+    ],
+)
 def test_capture_malformed_env_json(tmp_path, capsys, text):
     env = tmp_path / "env.json"
     env.write_text(text)
@@ -197,9 +277,14 @@ def test_capture_unknown_setup(tmp_path, capsys):
     assert_bad_input(code, err, "sideways", tmp_path, before)
 
 
-@pytest.mark.parametrize("spec, name", [("procedural:velvet:1", "velvet"),
-                                        ("procedural:wood:x", "procedural:wood:x"),
-                                        ("procedural:wood", "procedural:wood")])
+@pytest.mark.parametrize(
+    "spec, name",
+    [
+        ("procedural:velvet:1", "velvet"),
+        ("procedural:wood:x", "procedural:wood:x"),
+        ("procedural:wood", "procedural:wood"),
+    ],
+)
 def test_capture_bad_procedural_material(tmp_path, capsys, spec, name):
     before = set(tmp_path.rglob("*"))
     code, _, err = run_cli(capsys, *_capture_args(tmp_path, **{"--material": spec}))
@@ -213,8 +298,9 @@ def test_capture_bad_env_spec(tmp_path, capsys, spec):
     assert_bad_input(code, err, spec, tmp_path, before)
 
 
-@pytest.mark.parametrize("option, value",
-                         [("--spp", 0), ("--res", 0), ("--seed", -1), ("--integrator", "bdpt")])
+@pytest.mark.parametrize(
+    "option, value", [("--spp", 0), ("--res", 0), ("--seed", -1), ("--integrator", "bdpt")]
+)
 def test_capture_bad_numbers(tmp_path, capsys, option, value):
     before = set(tmp_path.rglob("*"))
     code, _, err = run_cli(capsys, *_capture_args(tmp_path, **{option: value}))

@@ -62,8 +62,9 @@ def _dirs(theta, phi) -> np.ndarray:
 def _tilted(axis, angle, azimuth=0.0) -> np.ndarray:
     """The unit vector at ``angle`` from the unit ``axis`` (float64)."""
     e1, e2 = reference._frame(np.asarray(axis, float))
-    return (math.cos(angle) * np.asarray(axis, float)
-            + math.sin(angle) * (math.cos(azimuth) * e1 + math.sin(azimuth) * e2))
+    return math.cos(angle) * np.asarray(axis, float) + math.sin(angle) * (
+        math.cos(azimuth) * e1 + math.sin(azimuth) * e2
+    )
 
 
 def _valid_configs(rng, count, n_max_deg=60.0, n_min_deg=0.0, v_min_deg=0.0, v_max_deg=89.9):
@@ -77,7 +78,7 @@ def _valid_configs(rng, count, n_max_deg=60.0, n_min_deg=0.0, v_min_deg=0.0, v_m
         v = _dirs(np.radians(rng.uniform(v_min_deg, v_max_deg, m)), rng.uniform(0, 2 * math.pi, m))
         l = _dirs(np.arccos(rng.uniform(0, 1, m)), rng.uniform(0, 2 * math.pi, m))
         n, l, v = _f32(n), _f32(l), _f32(v)
-        ok = ((np.sum(n * l, -1) > 1e-3) & (np.sum(n * v, -1) > 1e-3) & (l[:, 2] > 1e-3) & (v[:, 2] > 1e-3))
+        ok = (np.sum(n * l, -1) > 1e-3) & (np.sum(n * v, -1) > 1e-3) & (l[:, 2] > 1e-3) & (v[:, 2] > 1e-3)
         picked.append((n[ok], l[ok], v[ok]))
         have += int(ok.sum())
     return [np.concatenate([p[i] for p in picked])[:count] for i in range(3)]
@@ -124,8 +125,9 @@ class LobeDomain:
 
 
 def _chi2(domain, sample, pdf, sample_dim, res=101, ires=4) -> ChiSquareTest:
-    return ChiSquareTest(domain, sample, pdf, sample_dim=sample_dim, sample_count=1_000_000,
-                         res=res, ires=ires, seed=0)
+    return ChiSquareTest(
+        domain, sample, pdf, sample_dim=sample_dim, sample_count=1_000_000, res=res, ires=ires, seed=0
+    )
 
 
 # -- stable helpers ---------------------------------------------------------------------------
@@ -261,11 +263,13 @@ def test_sg_inner_product_and_product_match_reference():
     axis_np, lam_np = _np(axis), _np(lam_m)
     axis_np[lam_np < 1e-3] = [0.0, 0.0, 1.0]  # equal opposite lobes: constant product, any axis
     for k, off in enumerate([0.0, 1.0, 3.0]):
-        w = np.array([_tilted(_unit64(ax), off / math.sqrt(max(lm, 1.0)), 0.7 * k)
-                      for ax, lm in zip(axis_np, lam_np)])
+        w = np.array(
+            [_tilted(_unit64(ax), off / math.sqrt(max(lm, 1.0)), 0.7 * k) for ax, lm in zip(axis_np, lam_np)]
+        )
         pg = _np(sg.sg_eval(axis, lam_m, amp, _v(w)))
-        pr = (reference.sg_eval(_unit64(a1), _f32(l1), _f32(m1), _f32(w))
-              * reference.sg_eval(_unit64(a2), _f32(l2), _f32(m2), _f32(w)))
+        pr = reference.sg_eval(_unit64(a1), _f32(l1), _f32(m1), _f32(w)) * reference.sg_eval(
+            _unit64(a2), _f32(l2), _f32(m2), _f32(w)
+        )
         ok = pr.max(axis=1) > 1e-30
         tol_p = 1e-5 + 8 * EPS32 * np.maximum(l1, l2)
         rel_p = np.abs(pg / np.where(pr > 0, pr, 1.0) - 1.0).max(axis=1)
@@ -375,8 +379,10 @@ def test_brdf_eval_matches_reference(rng, case):
     """brdf_eval vs the textbook float64 form, relative 1e-4 per channel (measured ≤ 1.5e-5 over
     these sets), both Fresnel modes."""
     count = 1500
-    kw = {"near-tangent-normal": dict(n_max_deg=89.9, n_min_deg=88.0),
-          "grazing": dict(v_min_deg=85.0, v_max_deg=89.9)}.get(case, {})
+    kw = {
+        "near-tangent-normal": dict(n_max_deg=89.9, n_min_deg=88.0),
+        "grazing": dict(v_min_deg=85.0, v_max_deg=89.9),
+    }.get(case, {})
     n, l, v = _valid_configs(rng, count, **kw)
     r = {"r=0": 0.0, "r=0.03": 0.03, "r=1": 1.0}.get(case)
     r = rng.uniform(0.0, 1.0, count) if r is None else np.full(count, r)
@@ -431,8 +437,17 @@ def _hemisphere_integral(n, v, d, s, r, fresnel="schlick") -> np.ndarray:
     :func:`reference.integration_rule`, accurate to ≤ 1e-7 here)."""
     w, dw = reference.integration_rule(n, v, r, n=12)
     m = len(w)
-    f = _np(brdf.brdf_eval_cos(_v(np.tile(n, (m, 1))), _v(w), _v(np.tile(v, (m, 1))),
-                               _c(np.tile(d, (m, 1))), _c(np.tile(s, (m, 1))), _f(np.full(m, r)), fresnel))
+    f = _np(
+        brdf.brdf_eval_cos(
+            _v(np.tile(n, (m, 1))),
+            _v(w),
+            _v(np.tile(v, (m, 1))),
+            _c(np.tile(d, (m, 1))),
+            _c(np.tile(s, (m, 1))),
+            _f(np.full(m, r)),
+            fresnel,
+        )
+    )
     return np.sum(f * dw[:, None], axis=0)
 
 
@@ -480,8 +495,10 @@ def _brdf_chi2(n, v, d, s, r):
     return _chi2(domain, sample, pdf, 3)
 
 
-@pytest.mark.parametrize("roughness, normal", [(0.05, (0.0, 0.0, 1.0)), (0.3, (0.0, 0.0, 1.0)),
-                                               (1.0, (0.0, 0.0, 1.0)), (0.3, (0.5, -0.2, 0.84))])
+@pytest.mark.parametrize(
+    "roughness, normal",
+    [(0.05, (0.0, 0.0, 1.0)), (0.3, (0.0, 0.0, 1.0)), (1.0, (0.0, 0.0, 1.0)), (0.3, (0.5, -0.2, 0.84))],
+)
 def test_brdf_sample_chi2(roughness, normal):
     """brdf_sample against brdf_pdf (view 40° off the normal; invalid samples weigh 0), histogram
     on a :class:`LobeDomain` centred on the mirror direction."""
@@ -505,8 +522,9 @@ def test_brdf_sample_weight_is_eval_cos_over_pdf(rng):
     s = rng.uniform(0.0, 1.0, (m, 3))
     r = rng.uniform(0.05, 1.0, m)
     u = rng.uniform(0.0, 1.0, (m, 3))
-    l, pdf, weight = brdf.brdf_sample(_v(n), _v(v), _c(d), _c(s), _f(r), _f(u[:, 0]),
-                                      mi.Point2f(_f(u[:, 1]), _f(u[:, 2])))
+    l, pdf, weight = brdf.brdf_sample(
+        _v(n), _v(v), _c(d), _c(s), _f(r), _f(u[:, 0]), mi.Point2f(_f(u[:, 1]), _f(u[:, 2]))
+    )
     l_np, pdf_np, w_np = _np(l), _np(pdf), _np(weight)
     pdf_safe = np.where(pdf_np > 0, pdf_np, 1.0)
     np.testing.assert_array_equal(pdf_np, _np(brdf.brdf_pdf(_v(n), l, _v(v), _c(d), _c(s), _f(r))))
@@ -527,12 +545,22 @@ def test_brdf_hard_cases_finite_values_and_gradients():
     rows = []
     for r in (0.0, 0.03, 1.0):
         for tv in (0.0, 45.0, 85.0, 89.9):
-            for nmap in ((0.0, 0.0, 1.0), tuple(_dirs(math.radians(88.0), 0.5)),
-                         tuple(_dirs(math.radians(89.9), 2.0)), (1.0, 0.0, 0.0), (0.3, -0.9, 0.0)):
+            for nmap in (
+                (0.0, 0.0, 1.0),
+                tuple(_dirs(math.radians(88.0), 0.5)),
+                tuple(_dirs(math.radians(89.9), 2.0)),
+                (1.0, 0.0, 0.0),
+                (0.3, -0.9, 0.0),
+            ):
                 v = _dirs(math.radians(tv), 0.4)
                 nz = np.array(nmap) / np.linalg.norm(nmap)
-                for l in ((1.0, 0.0, 0.0), (0.0, -1.0, 0.0), tuple(2 * float(nz @ v) * nz - v),
-                          tuple(_dirs(1.0, 2.5)), tuple(_dirs(math.pi / 2, 0.4 + math.pi))):
+                for l in (
+                    (1.0, 0.0, 0.0),
+                    (0.0, -1.0, 0.0),
+                    tuple(2 * float(nz @ v) * nz - v),
+                    tuple(_dirs(1.0, 2.5)),
+                    tuple(_dirs(math.pi / 2, 0.4 + math.pi)),
+                ):
                     rows.append((r, v, nmap, l))
     r = _f([x[0] for x in rows])
     v = _v([x[1] for x in rows])
@@ -545,8 +573,11 @@ def test_brdf_hard_cases_finite_values_and_gradients():
         dr.enable_grad(x)
     n = brdf.perturbed_normal(nmap)
     u = np.random.default_rng(3).uniform(0, 1, (m, 3))
-    outs = [brdf.brdf_eval(n, l, v, d, s, r), brdf.brdf_eval_cos(n, l, v, d, s, r),
-            brdf.brdf_pdf(n, l, v, d, s, r)]
+    outs = [
+        brdf.brdf_eval(n, l, v, d, s, r),
+        brdf.brdf_eval_cos(n, l, v, d, s, r),
+        brdf.brdf_pdf(n, l, v, d, s, r),
+    ]
     l_s, pdf_s, w_s = brdf.brdf_sample(n, v, d, s, r, _f(u[:, 0]), mi.Point2f(_f(u[:, 1]), _f(u[:, 2])))
     outs += [l_s, pdf_s, w_s]
     total = 0.0
@@ -555,8 +586,14 @@ def test_brdf_hard_cases_finite_values_and_gradients():
         assert np.all(np.isfinite(arr)), o
         total = total + dr.sum(dr.sum(o) if dr.size_v(o) > 1 else o)
     dr.backward(total)
-    for name, x in (("roughness", r), ("view", v), ("normal map", nmap), ("l", l), ("diffuse", d),
-                    ("specular", s)):
+    for name, x in (
+        ("roughness", r),
+        ("view", v),
+        ("normal map", nmap),
+        ("l", l),
+        ("diffuse", d),
+        ("specular", s),
+    ):
         g = _np(dr.grad(x))
         assert np.all(np.isfinite(g)), (name, np.argwhere(~np.isfinite(g))[:5])
 
@@ -584,17 +621,28 @@ def test_sg_hard_cases_finite_values_and_gradients():
     for x in (lam, ax, amp, ax2, lam2):
         dr.enable_grad(x)
     u = np.random.default_rng(4).uniform(0, 1, (len(rows), 2))
-    outs = [sg.sg_eval(ax, lam, amp, w), sg.sg_integral(lam, amp),
-            sg.sg_inner_product(ax, lam, amp, ax2, lam2, amp), *sg.sg_product(ax, lam, amp, ax2, lam2, amp),
-            sg.sg_cosine_signed(ax, lam, amp, normal), sg.sg_irradiance(ax, lam, amp, normal),
-            sg.vmf_pdf(ax, lam, w), sg.vmf_sample(ax, lam, mi.Point2f(_f(u[:, 0]), _f(u[:, 1])))]
+    outs = [
+        sg.sg_eval(ax, lam, amp, w),
+        sg.sg_integral(lam, amp),
+        sg.sg_inner_product(ax, lam, amp, ax2, lam2, amp),
+        *sg.sg_product(ax, lam, amp, ax2, lam2, amp),
+        sg.sg_cosine_signed(ax, lam, amp, normal),
+        sg.sg_irradiance(ax, lam, amp, normal),
+        sg.vmf_pdf(ax, lam, w),
+        sg.vmf_sample(ax, lam, mi.Point2f(_f(u[:, 0]), _f(u[:, 1]))),
+    ]
     total = 0.0
     for o in outs:
         assert np.all(np.isfinite(_np(o))), o
         total = total + dr.sum(dr.sum(o) if dr.size_v(o) > 1 else o)
     dr.backward(total)
-    for name, x in (("sharpness", lam), ("axis", ax), ("amplitude", amp), ("axis2", ax2),
-                    ("sharpness2", lam2)):
+    for name, x in (
+        ("sharpness", lam),
+        ("axis", ax),
+        ("amplitude", amp),
+        ("axis2", ax2),
+        ("sharpness2", lam2),
+    ):
         g = _np(dr.grad(x))
         assert np.all(np.isfinite(g)), (name, np.argwhere(~np.isfinite(g))[:5])
 

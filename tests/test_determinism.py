@@ -26,8 +26,24 @@ REPO = Path(__file__).resolve().parents[1]
 @pytest.fixture(scope="module")
 def exemplar_dir(tmp_path_factory):
     out = tmp_path_factory.mktemp("det") / "exemplars"
-    assert main(["exemplars", "--env", "procedural:3", "--renderer", "fast", "--res", "48", "--spp", "16",
-                 "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "exemplars",
+                "--env",
+                "procedural:3",
+                "--renderer",
+                "fast",
+                "--res",
+                "48",
+                "--spp",
+                "16",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     return out
 
 
@@ -51,8 +67,20 @@ def test_deterministic_restores_the_thread_count(tmp_path, exemplar_dir):
     import drjit as dr
 
     before = dr.thread_count()
-    assert main(["--deterministic", "extract-sg", str(exemplar_dir), "--out", str(tmp_path / "e.json"),
-                 "--iters", "1"]) == 0
+    assert (
+        main(
+            [
+                "--deterministic",
+                "extract-sg",
+                str(exemplar_dir),
+                "--out",
+                str(tmp_path / "e.json"),
+                "--iters",
+                "1",
+            ]
+        )
+        == 0
+    )
     assert dr.thread_count() == before
 
 
@@ -61,8 +89,16 @@ def test_extract_sg_same_bytes_in_process_and_across_processes(tmp_path, exempla
     for out in outs[:2]:
         assert main(["extract-sg", str(exemplar_dir), "--out", str(out), *EXTRACT, "--deterministic"]) == 0
     env = {**os.environ, "EBR_DETERMINISTIC": "1"}
-    cmd = [sys.executable, "-m", "ebr_mitsuba.cli", "extract-sg", str(exemplar_dir), "--out", str(outs[2]),
-           *EXTRACT]
+    cmd = [
+        sys.executable,
+        "-m",
+        "ebr_mitsuba.cli",
+        "extract-sg",
+        str(exemplar_dir),
+        "--out",
+        str(outs[2]),
+        *EXTRACT,
+    ]
     r = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     assert len({_digest(p) for p in outs}) == 1, [p.read_text()[:200] for p in outs]
@@ -79,8 +115,10 @@ def test_extract_sg_library_call_is_deterministic_under_set_deterministic(exempl
     before = dr.thread_count()
     set_deterministic()
     try:
-        runs = [extract_sg(data.images, data.roughness, config=ExtractConfig(iters=30, max_lobes=12))
-                for _ in range(2)]
+        runs = [
+            extract_sg(data.images, data.roughness, config=ExtractConfig(iters=30, max_lobes=12))
+            for _ in range(2)
+        ]
     finally:
         dr.set_thread_count(before)
     a, b = (r.env.to_json() for r in runs)
@@ -96,14 +134,34 @@ def test_estimate_same_files(tmp_path, capsys, monkeypatch):
     monkeypatch.setitem(sys.modules, "ebr_mitsuba.train.inference", fake_inference())
     outs = [tmp_path / f"est{k}" for k in range(2)]
     for out in outs:
-        assert main(["--deterministic", "estimate", "--flash", str(tmp_path / "flash.exr"), "--noflash",
-                     str(tmp_path / "noflash.exr"), "--out", str(out), "--checkpoint",
-                     str(tmp_path / "flash.exr"), "--refine-steps", "5", "--refine-lobes"]) == 0
+        assert (
+            main(
+                [
+                    "--deterministic",
+                    "estimate",
+                    "--flash",
+                    str(tmp_path / "flash.exr"),
+                    "--noflash",
+                    str(tmp_path / "noflash.exr"),
+                    "--out",
+                    str(out),
+                    "--checkpoint",
+                    str(tmp_path / "flash.exr"),
+                    "--refine-steps",
+                    "5",
+                    "--refine-lobes",
+                ]
+            )
+            == 0
+        )
     capsys.readouterr()
 
     def files(root: Path) -> dict:
-        return {p.relative_to(root).as_posix(): _digest(p) for p in sorted(root.rglob("*"))
-                if p.is_file() and p.name not in ("estimate.json", "report.html")}
+        return {
+            p.relative_to(root).as_posix(): _digest(p)
+            for p in sorted(root.rglob("*"))
+            if p.is_file() and p.name not in ("estimate.json", "report.html")
+        }
 
     assert files(outs[0]) == files(outs[1])
     assert len(files(outs[0])) > 10

@@ -65,8 +65,9 @@ def full_exr(monkeypatch):
         def __getattr__(self, name):
             return getattr(self._file, name)
 
-    monkeypatch.setattr(OpenEXR, "File", lambda *a, **k: FullFile(*a, **k) if a and isinstance(a[0], dict)
-                        else real(*a, **k))
+    monkeypatch.setattr(
+        OpenEXR, "File", lambda *a, **k: FullFile(*a, **k) if a and isinstance(a[0], dict) else real(*a, **k)
+    )
 
 
 @pytest.fixture
@@ -109,8 +110,10 @@ def test_disk_full_error_message_and_pickling(tmp_path):
     import pickle
 
     e = DiskFullError(tmp_path / "x.json")
-    assert str(e) == (f"no space left on device {mount_point(tmp_path)} writing {tmp_path / 'x.json'}; "
-                      f"free space on {mount_point(tmp_path)} or choose another --out")
+    assert str(e) == (
+        f"no space left on device {mount_point(tmp_path)} writing {tmp_path / 'x.json'}; "
+        f"free space on {mount_point(tmp_path)} or choose another --out"
+    )
     assert e.exit_code == 2
     again = pickle.loads(pickle.dumps(e))
     assert str(again) == str(e) and again.path == e.path
@@ -135,8 +138,26 @@ def test_disk_full_found_through_the_cause_chain(tmp_path):
 @pytest.fixture(scope="module")
 def exemplar_dir(tmp_path_factory):
     out = tmp_path_factory.mktemp("ex") / "exemplars"
-    assert main(["exemplars", "--env", "procedural:3", "--renderer", "fast", "--res", "32", "--spp", "8",
-                 "--roughness", "0.2,0.7", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "exemplars",
+                "--env",
+                "procedural:3",
+                "--renderer",
+                "fast",
+                "--res",
+                "32",
+                "--spp",
+                "8",
+                "--roughness",
+                "0.2,0.7",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     return out
 
 
@@ -186,11 +207,25 @@ def test_estimate_output_directory_full(tmp_path, capsys, monkeypatch):
                 raise RuntimeError(f'Failed to write pixel data to image file "{path}". {ENOSPC_TEXT}.')
             self._f.write(path)
 
-    monkeypatch.setattr(OpenEXR, "File", lambda *a, **k: FullAfterTwo(*a, **k) if a and isinstance(a[0], dict)
-                        else real(*a, **k))
+    monkeypatch.setattr(
+        OpenEXR,
+        "File",
+        lambda *a, **k: FullAfterTwo(*a, **k) if a and isinstance(a[0], dict) else real(*a, **k),
+    )
     out = tmp_path / "est"
-    code = main(["estimate", "--flash", str(inputs / "flash.exr"), "--noflash", str(inputs / "noflash.exr"),
-                 "--out", str(out), "--checkpoint", str(inputs / "flash.exr")])
+    code = main(
+        [
+            "estimate",
+            "--flash",
+            str(inputs / "flash.exr"),
+            "--noflash",
+            str(inputs / "noflash.exr"),
+            "--out",
+            str(out),
+            "--checkpoint",
+            str(inputs / "flash.exr"),
+        ]
+    )
     line = _one_line(capsys.readouterr().err, "estimate")
     assert code == 2 and state["writes"] == 3
     written = line.split(" writing ", 1)[1].split(";", 1)[0]
@@ -259,10 +294,16 @@ def tiny_tmpfs(tmp_path):
 def test_real_tmpfs(tiny_tmpfs, capsys, exemplar_dir):
     (tiny_tmpfs / "fill").write_bytes(b"\0" * (64 * 1024 - 4096))  # one page left
     cases = [
-        ("exemplars", ["--point-light", "--res", "64", "--spp", "1", "--out", str(tiny_tmpfs / "ex")],
-         tiny_tmpfs / "ex" / "r0.100.exr"),
-        ("extract-sg", [str(exemplar_dir), "--out", str(tiny_tmpfs / "env.json"), "--iters", "2"],
-         tiny_tmpfs / "env.json"),
+        (
+            "exemplars",
+            ["--point-light", "--res", "64", "--spp", "1", "--out", str(tiny_tmpfs / "ex")],
+            tiny_tmpfs / "ex" / "r0.100.exr",
+        ),
+        (
+            "extract-sg",
+            [str(exemplar_dir), "--out", str(tiny_tmpfs / "env.json"), "--iters", "2"],
+            tiny_tmpfs / "env.json",
+        ),
     ]
     (tiny_tmpfs / "fill2").write_bytes(b"\0" * 4096)  # now completely full
     for command, args, expect in cases:

@@ -25,8 +25,15 @@ DOCS = ROOT / "docs"
 PLUGIN_CLASSES = {"sgenvmap": "SGEnvMap", "svbrdf": "SVBRDFBSDF"}
 _FENCE = re.compile(r"^[ \t]*(```|~~~)xml[ \t]*\n(.*?)^[ \t]*\1[ \t]*$", re.M | re.S)
 _TAG = re.compile(r"<(scene|emitter|bsdf|shape|texture|sensor|integrator|film|sampler|bitmap)\b")
-_KINDS = {"emitter": "Emitter", "bsdf": "BSDF", "texture": "Texture", "shape": "Shape",
-          "sensor": "Sensor", "integrator": "Integrator", "scene": "Scene"}
+_KINDS = {
+    "emitter": "Emitter",
+    "bsdf": "BSDF",
+    "texture": "Texture",
+    "shape": "Shape",
+    "sensor": "Sensor",
+    "integrator": "Integrator",
+    "scene": "Scene",
+}
 
 
 def _plugin_docstrings() -> dict[str, str]:
@@ -63,15 +70,16 @@ def test_docs_have_xml_examples_and_none_outside_fences():
     for name, text in _sources().items():
         rest = _FENCE.sub("", text)
         stray = _TAG.search(rest)
-        assert stray is None, f"{name}: XML outside an xml block: {rest[stray.start():][:60]!r}"
+        assert stray is None, f"{name}: XML outside an xml block: {rest[stray.start() :][:60]!r}"
 
 
 def _write_asset(path: Path) -> None:
     """A small stand-in for the file an example names (by extension)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     if path.suffix == ".json":
-        SGEnvironment([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]], [2.0, 300.0],
-                      [[0.5, 0.5, 0.6], [20.0, 18.0, 15.0]]).save(path)
+        SGEnvironment(
+            [[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]], [2.0, 300.0], [[0.5, 0.5, 0.6], [20.0, 18.0, 15.0]]
+        ).save(path)
     elif path.suffix in (".exr", ".png"):
         value = (0.0, 0.0, 1.0) if "normal" in path.stem else (0.5, 0.4, 0.3)
         image = np.broadcast_to(np.asarray(value, np.float32), (4, 4, 3)).copy()

@@ -95,8 +95,9 @@ def test_peer_fit_conversion_matches_the_map(data_dir):
 def test_cli_fit_env(tmp_path, synthetic_map, capsys):
     src = write_exr(tmp_path / "map.exr", synthetic_map.data)
     out = tmp_path / "env.json"
-    rc = main(["fit-env", str(src), "--lobes", "3", "--iters", "40", "--height", "16", "--out", str(out),
-               "--json"])
+    rc = main(
+        ["fit-env", str(src), "--lobes", "3", "--iters", "40", "--height", "16", "--out", str(out), "--json"]
+    )
     captured = capsys.readouterr()
     assert rc == 0, captured.err
     env = SGEnvironment.load(out)
@@ -106,10 +107,13 @@ def test_cli_fit_env(tmp_path, synthetic_map, capsys):
     assert "relative L1" in captured.err
 
 
-@pytest.mark.parametrize("args, needle", [
-    (["--lobes", "0"], "--lobes"),
-    (["--iters", "-1"], "--iters"),
-])
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["--lobes", "0"], "--lobes"),
+        (["--iters", "-1"], "--iters"),
+    ],
+)
 def test_cli_fit_env_bad_options(tmp_path, synthetic_map, capsys, args, needle):
     src = write_exr(tmp_path / "map.exr", synthetic_map.data)
     rc = main(["fit-env", str(src), "--out", str(tmp_path / "env.json"), *args])

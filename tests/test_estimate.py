@@ -405,8 +405,12 @@ def test_basis_prior_recovers_two_materials_and_fits_the_photos():
     photos = _render(two, shots)
     mask = np.ones((n, n), bool)
     targets = [ShotTarget(s, photos[s.name], mask) for s in shots]
-    start = SVBRDF(truth.normal, np.clip(truth.diffuse * 0.7 + 0.05, 0, 1),
-                   np.full((n, n, 3), 0.2, np.float32), np.full((n, n), 0.6, np.float32))
+    start = SVBRDF(
+        truth.normal,
+        np.clip(truth.diffuse * 0.7 + 0.05, 0, 1),
+        np.full((n, n, 3), 0.2, np.float32),
+        np.full((n, n), 0.6, np.float32),
+    )
     one = refine(start, ENV, targets, RefineConfig(steps=30, basis=1))
     assert one.after["mean"]["rmse"] < one.before["mean"]["rmse"]
     assert np.ptp(one.maps.roughness) < 1e-5 and np.ptp(one.maps.specular[..., 0]) < 1e-5
@@ -525,8 +529,17 @@ def test_estimate_max_size_at_the_grid(tmp_path, capsys, fake_net):
     paths = _write_capture(tmp_path, n=80)
     out = tmp_path / "est"
     code, stdout, err = _estimate(
-        ["--flash", paths["flash"], "--noflash", paths["noflash"], "--out", out, "--max-size", str(GRID),
-         "--json"],
+        [
+            "--flash",
+            paths["flash"],
+            "--noflash",
+            paths["noflash"],
+            "--out",
+            out,
+            "--max-size",
+            str(GRID),
+            "--json",
+        ],
         capsys,
     )
     assert code == 0, err
@@ -716,8 +729,23 @@ def test_grid_refinement_above_the_grid(tmp_path, capsys, fake_net):
     assert inp.resampled((GRID, GRID)).saturated.shape == (GRID, GRID)
     out = tmp_path / "est"
     code, stdout, err = _estimate(
-        ["--flash", paths["flash"], "--noflash", paths["noflash"], "--out", out, "--max-size", str(GRID),
-         "--refine-steps", "2", "--flash-intensity", "10", "--json"], capsys)
+        [
+            "--flash",
+            paths["flash"],
+            "--noflash",
+            paths["noflash"],
+            "--out",
+            out,
+            "--max-size",
+            str(GRID),
+            "--refine-steps",
+            "2",
+            "--flash-intensity",
+            "10",
+            "--json",
+        ],
+        capsys,
+    )
     assert code == 0, err
     summary = json.loads(stdout)
     assert summary["resolution"] == GRID and summary["refine"]["steps"] == 2
@@ -744,8 +772,11 @@ def test_alignment_refuses_only_confident_shifts(tmp_path):
     plate = SVBRDF.uniform(64, 64, diffuse=0.5, specular=0.04, roughness=0.1)
     copper = SVBRDF.uniform(64, 64, diffuse=0.0, specular=(0.955, 0.638, 0.538), roughness=0.25)
     cases = [
-        (plate, "procedural:1", 1.0, 0), (plate, "procedural:1", 1.0, 1), (copper, "procedural:1", 1.0, 1),
-        (plate, "procedural:2", 0.1, 1), (plate, "procedural:3", 1.0, 0),
+        (plate, "procedural:1", 1.0, 0),
+        (plate, "procedural:1", 1.0, 1),
+        (copper, "procedural:1", 1.0, 1),
+        (plate, "procedural:2", 0.1, 1),
+        (plate, "procedural:3", 1.0, 0),
     ]
     for k, (material, env, scale, seed) in enumerate(cases):
         cap = tmp_path / f"dark{k}"
@@ -783,14 +814,19 @@ def test_refinement_keeps_the_best_iterate():
     shots = [near_shot(True), near_shot(False)]
     photos = _render(truth, shots)
     targets = [ShotTarget(s, photos[s.name], np.ones((n, n), bool)) for s in shots]
-    start = SVBRDF(normal=truth.normal, diffuse=np.clip(truth.diffuse * 0.6 + 0.1, 0, 1),
-                   specular=np.full((n, n, 3), 0.2, np.float32), roughness=np.full((n, n), 0.7, np.float32))
+    start = SVBRDF(
+        normal=truth.normal,
+        diffuse=np.clip(truth.diffuse * 0.6 + 0.1, 0, 1),
+        specular=np.full((n, n, 3), 0.2, np.float32),
+        roughness=np.full((n, n), 0.7, np.float32),
+    )
 
     wild = refine(start, ENV, targets, RefineConfig(steps=10, lr=30.0, normal_lr=3.0, log_every=5))
     assert [s for s, _ in wild.history] == [0, 5, 10] and wild.history[-1][1] > wild.history[0][1]
     assert wild.kept_step == 0 and wild.loss_rose
-    assert wild.loss_note() == (f"loss rose from {wild.history[0][1]:.4g} to {wild.history[-1][1]:.4g}; "
-                                f"kept step 0")
+    assert wild.loss_note() == (
+        f"loss rose from {wild.history[0][1]:.4g} to {wild.history[-1][1]:.4g}; kept step 0"
+    )
     for name in ("diffuse", "specular", "roughness", "normal"):
         np.testing.assert_allclose(getattr(wild.maps, name), getattr(start, name), atol=1e-5)
     assert wild.after["mean"]["rmse"] == pytest.approx(wild.before["mean"]["rmse"], rel=1e-5)
@@ -814,13 +850,26 @@ def test_diverging_refinement_is_reported(tmp_path, capsys, fake_net):
 
     paths = _write_capture(tmp_path)
     out = tmp_path / "est"
-    args = ["--flash", paths["flash"], "--noflash", paths["noflash"], "--out", out, "--refine-steps", "10",
-            "--refine-lr", "50", "--flash-intensity", "10"]
+    args = [
+        "--flash",
+        paths["flash"],
+        "--noflash",
+        paths["noflash"],
+        "--out",
+        out,
+        "--refine-steps",
+        "10",
+        "--refine-lr",
+        "50",
+        "--flash-intensity",
+        "10",
+    ]
     code, _, err = _estimate(args, capsys)
     assert code == 0, err
     assert "loss rose from" in err and "kept step 0" in err
     summary = json.loads((out / "estimate.json").read_text())
     assert summary["refine"]["loss_rose"] and summary["refine"]["kept_step"] == 0
     assert "loss rose from" in (out / "report.html").read_text()
-    np.testing.assert_allclose(read_exr(out / "maps" / "diffuse.exr"),
-                               read_exr(out / "maps_network" / "diffuse.exr"), atol=1e-5)
+    np.testing.assert_allclose(
+        read_exr(out / "maps" / "diffuse.exr"), read_exr(out / "maps_network" / "diffuse.exr"), atol=1e-5
+    )

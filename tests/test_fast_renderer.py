@@ -52,8 +52,12 @@ def hemisphere_rule(n_mu: int = 400, n_phi: int = 800):
 def random_material(rng, h, w, tilt=0.3, rough=(0.2, 0.9)):
     n = rng.normal(size=(h, w, 3)) * tilt
     n[..., 2] = 1.0
-    return SVBRDF(_unit(n), rng.uniform(0.1, 0.9, (h, w, 3)), rng.uniform(0.1, 0.9, (h, w, 3)),
-                  rng.uniform(*rough, (h, w)))
+    return SVBRDF(
+        _unit(n),
+        rng.uniform(0.1, 0.9, (h, w, 3)),
+        rng.uniform(0.1, 0.9, (h, w, 3)),
+        rng.uniform(*rough, (h, w)),
+    )
 
 
 def random_env(rng, k, lam=(2.0, 30.0)):
@@ -70,8 +74,16 @@ def test_point_light_matches_analytic_value():
     sv = random_material(rng, 8, 8)
     shot = view_shot((0.4, -0.3, 2.2), light=(-0.7, 0.5, 1.6), intensity=7.5, env=False)
     img = render_numpy(sv, SGEnvironment.empty(), shot)
-    flat = [a.reshape(-1, 3) for a in (sv.normal, view_directions(8, 8, shot.camera), pixel_positions(8, 8),
-                                       sv.diffuse, sv.specular)]
+    flat = [
+        a.reshape(-1, 3)
+        for a in (
+            sv.normal,
+            view_directions(8, 8, shot.camera),
+            pixel_positions(8, 8),
+            sv.diffuse,
+            sv.specular,
+        )
+    ]
     ref = reference.render_point(*flat[:3], shot.flash, 7.5, *flat[3:], sv.roughness.reshape(-1))
     assert ref.min() > 0
     np.testing.assert_allclose(img.reshape(-1, 3), ref, rtol=1e-5, atol=0)
@@ -95,8 +107,9 @@ def test_pixel_mapping_follows_design_grid():
     np.testing.assert_allclose(img[2, 5, 0], (1.0 / math.pi) * cos * 10.0 / d2, rtol=1e-5)
 
     uniform = SVBRDF.uniform(h, w, diffuse=0.5, specular=0.0, roughness=0.5)
-    lit = render_numpy(uniform, None, view_shot((0, 0, NEAR_DISTANCE), light=(2.0, 2.0, 1.0), env=False),
-                       fresnel="none")
+    lit = render_numpy(
+        uniform, None, view_shot((0, 0, NEAR_DISTANCE), light=(2.0, 2.0, 1.0), env=False), fresnel="none"
+    )
     assert np.unravel_index(np.argmax(lit[..., 0]), (h, w)) == (0, w - 1)
 
 
@@ -126,9 +139,11 @@ def test_sg_diffuse_is_exact_for_flat_normal():
     """sg mode, F = 0: the diffuse term equals the brute-force hemisphere integral for lobes above,
     straddling and below the horizon: 3e-4 relative with 64 irradiance nodes (the residual is
     sg_irradiance's Gauss–Legendre error at the horizon kink, 1.6e-4 here)."""
-    env = SGEnvironment([[0, 0, 1], [1, 0, 0.1], [0.3, -1, -0.2], [0, 1, -1], [1, 1, 0.5]],
-                        [1e-3, 8.0, 30.0, 3.0, 60.0],
-                        [[1.0, 0.5, 0.2], [2.0, 2.0, 2.0], [0.5, 1.0, 3.0], [4.0, 1.0, 1.0], [1.0, 1.0, 1.0]])
+    env = SGEnvironment(
+        [[0, 0, 1], [1, 0, 0.1], [0.3, -1, -0.2], [0, 1, -1], [1, 1, 0.5]],
+        [1e-3, 8.0, 30.0, 3.0, 60.0],
+        [[1.0, 0.5, 0.2], [2.0, 2.0, 2.0], [0.5, 1.0, 3.0], [4.0, 1.0, 1.0], [1.0, 1.0, 1.0]],
+    )
     sv = SVBRDF.uniform(4, 4, diffuse=(0.2, 0.5, 0.8), specular=0.0, roughness=0.5)
     img = render_numpy(sv, env, near_shot(False), mode="sg", fresnel="none", irradiance_nodes=64)
     dirs, wts = hemisphere_rule(600, 1200)
@@ -145,8 +160,14 @@ def test_quadrature_converges_to_reference():
     env = random_env(rng, 5, lam=(2.0, 40.0))
     shot = view_shot((0.5, 0.3, 2.0), env=True)
     pix = ([0, 3, 7, 5], [0, 6, 2, 5])
-    ref = reference.render_env(env, sv.normal[pix], view_directions(8, 8, shot.camera)[pix], sv.diffuse[pix],
-                               sv.specular[pix], sv.roughness[pix])
+    ref = reference.render_env(
+        env,
+        sv.normal[pix],
+        view_directions(8, 8, shot.camera)[pix],
+        sv.diffuse[pix],
+        sv.specular[pix],
+        sv.roughness[pix],
+    )
 
     def rel_err(spp):
         got = render_numpy(sv, env, shot, mode="quadrature", spp=spp)[pix]
@@ -234,8 +255,9 @@ def test_gradients_match_finite_differences(mode):
         dr.enable_grad(lobes2.amplitude, maps2.roughness)
         dr.backward(_loss(render(maps2, lobes2, shot, opts), weights))
         np.testing.assert_allclose(dr.grad(lobes2.amplitude).numpy(), grads["amplitude"].numpy(), rtol=1e-5)
-        np.testing.assert_allclose(dr.grad(maps2.roughness).numpy(), grads["roughness"].numpy(),
-                                   rtol=1e-4, atol=1e-6)
+        np.testing.assert_allclose(
+            dr.grad(maps2.roughness).numpy(), grads["roughness"].numpy(), rtol=1e-4, atol=1e-6
+        )
 
     for name, value in params.items():
         direction = _direction(rng, value)
@@ -255,8 +277,14 @@ def test_gradients_match_finite_differences(mode):
 HARD_LOBES = SGEnvironment(
     axis=[[0, 0, 1], [1, 0, 0], [0.3, 0.2, -1], [0.2, 0.9, 0.4], [-0.5, 0.1, 0.8], [0, 1, 0.05]],
     sharpness=[1e-3, 1e4, 5.0, 1e4, 1e-3, 200.0],
-    amplitude=[[0.1, 0.1, 0.1], [1e3, 1e3, 1e3], [1.0, 1.0, 1.0], [1e3, 9e2, 8e2], [0.05, 0.1, 0.2],
-               [1, 1, 1]],
+    amplitude=[
+        [0.1, 0.1, 0.1],
+        [1e3, 1e3, 1e3],
+        [1.0, 1.0, 1.0],
+        [1e3, 9e2, 8e2],
+        [0.05, 0.1, 0.2],
+        [1, 1, 1],
+    ],
 )
 
 
@@ -279,8 +307,11 @@ def test_hard_cases_are_finite(mode, case):
     lights, λ = 1e-3 and 1e4, a sun 1e4× the sky, lobes below and at the horizon, a black env, K = 0."""
     env = {"hard": HARD_LOBES, "black": HARD_LOBES.scaled(0.0), "none": SGEnvironment.empty()}[case]
     sv = _hard_maps()
-    shots = [near_shot(True), view_shot((40.0, 3.0, 0.4), light=(-30.0, 0.0, 0.2), intensity=1e3),
-             view_shot((0.0, 0.0, 1e-3), light=(0.0, -5.0, 1e-4))]
+    shots = [
+        near_shot(True),
+        view_shot((40.0, 3.0, 0.4), light=(-30.0, 0.0, 0.2), intensity=1e3),
+        view_shot((0.0, 0.0, 1e-3), light=(0.0, -5.0, 1e-4)),
+    ]
     for shot in shots:
         _assert_finite_render(sv, env, shot, mode, f"{case} {shot.name}")
 
@@ -319,9 +350,14 @@ def test_tiny_amplitudes_are_finite(mode):
     sv = SVBRDF(n, np.full((1, 4, 3), 0.5), np.full((1, 4, 3), 0.04), np.array([[0.0, 0.03, 1.0, 0.0]]))
     shots = [_grazing_flash_shot(), view_shot((40.0, 3.0, 0.4), light=(-30.0, 0.0, 0.2), intensity=1e3)]
     for amplitude in TINY_AMPLITUDES:
-        envs = [SGEnvironment([[0.0, 0.3, 1.0]], [1e-6], [[amplitude] * 3]),
-                SGEnvironment([[0.0, 0.3, 1.0], [1.0, 0.0, 0.01]], [1e-6, 1e4],
-                              [[amplitude] * 3, [amplitude, 0.0, 2 * amplitude]])]
+        envs = [
+            SGEnvironment([[0.0, 0.3, 1.0]], [1e-6], [[amplitude] * 3]),
+            SGEnvironment(
+                [[0.0, 0.3, 1.0], [1.0, 0.0, 0.01]],
+                [1e-6, 1e4],
+                [[amplitude] * 3, [amplitude, 0.0, 2 * amplitude]],
+            ),
+        ]
         for env in envs:
             for shot in shots:
                 where = f"μ={amplitude} K={env.num_lobes} camera {shot.camera}"
@@ -335,8 +371,11 @@ def test_tiny_amplitude_gradients_match_finite_differences(mode, amplitude):
     match central differences (relative steps) within 5e-3, as at amplitude 1."""
     rng = np.random.default_rng(23)
     sv = random_material(rng, 4, 4)
-    env = SGEnvironment([[0.2, 0.3, 1.0], [-0.5, 0.1, 0.6]], [3.0, 20.0],
-                        amplitude * np.array([[1.0, 0.8, 0.6], [2.0, 2.5, 3.0]]))
+    env = SGEnvironment(
+        [[0.2, 0.3, 1.0], [-0.5, 0.1, 0.6]],
+        [3.0, 20.0],
+        amplitude * np.array([[1.0, 0.8, 0.6], [2.0, 2.5, 3.0]]),
+    )
     shot = view_shot((0.3, -0.2, 2.2), light=None)
     opts = RenderOptions(mode=mode, spp=8)
     weights = mi.Float(rng.uniform(0, 1, 4 * 4 * 3).astype(np.float32))
@@ -359,8 +398,9 @@ def test_tiny_amplitude_gradients_match_finite_differences(mode, amplitude):
             lo = DrLobes.from_env(env)
             setattr(lo, name, dr.detach(value) + sign * step * direction)
             with dr.suspend_grad():
-                vals.append(float(_loss(render(DrMaps.from_numpy(sv), lo, shot, opts, guide=guide),
-                                        weights)[0]))
+                vals.append(
+                    float(_loss(render(DrMaps.from_numpy(sv), lo, shot, opts, guide=guide), weights)[0])
+                )
         fd = (vals[0] - vals[1]) / (2 * step)
         assert fd != 0.0 and abs(ad - fd) <= 5e-3 * abs(fd), f"{mode} {name}: AD {ad} vs FD {fd}"
 
@@ -376,8 +416,13 @@ def test_exemplars_equal_uniform_renders_and_are_differentiable(mode):
     images = exemplar_images(lobes, rough, 8, 6, mode=mode, spp=8)
     assert len(images) == 2 and tuple(images[0].shape) == (8, 6, 3)
     for r, img in zip(rough, images):
-        ref = render_numpy(SVBRDF.uniform(8, 6, diffuse=0.1, specular=0.2, roughness=r), env,
-                           near_shot(False), mode=mode, spp=8)
+        ref = render_numpy(
+            SVBRDF.uniform(8, 6, diffuse=0.1, specular=0.2, roughness=r),
+            env,
+            near_shot(False),
+            mode=mode,
+            spp=8,
+        )
         np.testing.assert_allclose(img.numpy(), ref, rtol=2e-5, atol=1e-7)
     dr.backward(dr.sum(images[0].array) + 2.0 * dr.sum(images[1].array))
     for g in (dr.grad(lobes.amplitude), dr.grad(lobes.axis)):
@@ -393,8 +438,9 @@ def test_no_recompilation_when_camera_light_and_scale_change():
         for mode in MODES:
             render_numpy(sv, env, view_shot((0.1, 0.2, 2.0), (0.3, 0.3, 1.5), 3.0), mode=mode, spp=4)
             dr.kernel_history()
-            render_numpy(sv, env, view_shot((-0.4, 0.7, 3.0), (1.3, -0.2, 2.5), 9.0), mode=mode, spp=4,
-                         env_scale=2.5)
+            render_numpy(
+                sv, env, view_shot((-0.4, 0.7, 3.0), (1.3, -0.2, 2.5), 9.0), mode=mode, spp=4, env_scale=2.5
+            )
             kernels = [k for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]
             assert kernels and all(k["cache_hit"] for k in kernels), mode
     finally:
@@ -407,8 +453,9 @@ def test_roughness_may_carry_a_channel_axis():
     maps = DrMaps.from_numpy(sv)
     maps3 = DrMaps(maps.normal, maps.diffuse, maps.specular, mi.TensorXf(sv.roughness[..., None]))
     lobes = DrLobes.from_env(env)
-    np.testing.assert_array_equal(render(maps, lobes, near_shot(True)).numpy(),
-                                  render(maps3, lobes, near_shot(True)).numpy())
+    np.testing.assert_array_equal(
+        render(maps, lobes, near_shot(True)).numpy(), render(maps3, lobes, near_shot(True)).numpy()
+    )
 
 
 def test_bad_inputs_raise_specific_errors():

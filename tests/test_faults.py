@@ -47,8 +47,15 @@ EBR = [sys.executable, "-m", "ebr_mitsuba.cli"]
 
 GENERATE_KILLS = ["SIGKILL", "SIGTERM"]
 TRAIN_KILLS = ["before-checkpoint-resume", "before-checkpoint-restart", "after-checkpoint", "during-write"]
-DAMAGES = ["16 bytes", "1 bit", "truncated exr", "no manifest.json", "no sample.json", "bad sample.json",
-           "bad dataset.json"]
+DAMAGES = [
+    "16 bytes",
+    "1 bit",
+    "truncated exr",
+    "no manifest.json",
+    "no sample.json",
+    "bad sample.json",
+    "bad dataset.json",
+]
 WRITERS = ["generate", "estimate", "train"]
 
 
@@ -141,8 +148,16 @@ def check_finished_run(out: Path, stages: dict) -> None:
 @pytest.mark.parametrize("sig", GENERATE_KILLS)
 def test_kill_generate(tiny, tmp_path, sig):
     out = tmp_path / "G"
-    cmd = EBR + ["generate", str(CONFIGS / "data_tiny.toml"), "--out", str(out), "--count", "10",
-                 "--workers", "2"]
+    cmd = EBR + [
+        "generate",
+        str(CONFIGS / "data_tiny.toml"),
+        "--out",
+        str(out),
+        "--count",
+        "10",
+        "--workers",
+        "2",
+    ]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=ENV)
     workers = {}
 
@@ -213,8 +228,12 @@ def test_kill_train(tiny, tmp_path, case):
     cfg = train_config(tmp_path / "t.toml", tiny, stages, use_exemplars=False, **opts)
     args = ["train", str(cfg), "--out", str(out)]
     if case == "during-write":  # the 2nd torch.save (step 20) writes half its bytes, then SIGKILL
-        proc = subprocess.Popen([sys.executable, "-c", KILL_IN_SAVE] + args, stdout=subprocess.DEVNULL,
-                                stderr=subprocess.DEVNULL, env=dict(ENV, EBR_TEST_KILL_AT_SAVE="2"))
+        proc = subprocess.Popen(
+            [sys.executable, "-c", KILL_IN_SAVE] + args,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            env=dict(ENV, EBR_TEST_KILL_AT_SAVE="2"),
+        )
         proc.wait(timeout=300)
         assert proc.returncode == -9
         assert [p.name for p in out.glob(".last.*.tmp.pt")], "no half-written checkpoint"
@@ -271,8 +290,13 @@ def test_train_refuses_damaged_data(tiny, tmp_path, kind):
     shutil.copytree(tiny, data)
     named = damage(data, kind)
     cfg = train_config(tmp_path / "t.toml", data, {"lighting": 2}, checkpoint_every=1)
-    result = subprocess.run(EBR + ["train", str(cfg), "--out", str(tmp_path / "run")], capture_output=True,
-                            text=True, env=ENV, timeout=300)
+    result = subprocess.run(
+        EBR + ["train", str(cfg), "--out", str(tmp_path / "run")],
+        capture_output=True,
+        text=True,
+        env=ENV,
+        timeout=300,
+    )
     assert result.returncode == 2, result.stderr
     line = one_error_line(result.stderr, "train")
     assert named in line and "ebr generate" in line, line
@@ -290,15 +314,27 @@ def test_second_process_is_refused(tiny, tmp_path, command):
         argv = ["generate", str(CONFIGS / "data_tiny.toml"), "--out", str(out), "--count", "40"]
         second = argv + ["--resume"]
     elif command == "estimate":
-        argv = ["estimate", "--flash", str(photos / "flash.png"), "--noflash", str(photos / "noflash.png"),
-                "--out", str(out)]
+        argv = [
+            "estimate",
+            "--flash",
+            str(photos / "flash.png"),
+            "--noflash",
+            str(photos / "noflash.png"),
+            "--out",
+            str(out),
+        ]
         second = argv
     else:
-        argv = ["train", str(train_config(tmp_path / "t.toml", tiny, {"lighting": 2000},
-                                          checkpoint_every=1000)), "--out", str(out)]
+        argv = [
+            "train",
+            str(train_config(tmp_path / "t.toml", tiny, {"lighting": 2000}, checkpoint_every=1000)),
+            "--out",
+            str(out),
+        ]
         second = argv + ["--resume"]
-    first = subprocess.Popen(EBR + argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                             env=ENV)
+    first = subprocess.Popen(
+        EBR + argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=ENV
+    )
     try:
         wait_for(lock_path(out).exists, what="the first process's lock", proc=first)
         result = subprocess.run(EBR + second, capture_output=True, text=True, env=ENV, timeout=300)
@@ -325,10 +361,13 @@ def test_second_process_is_refused(tiny, tmp_path, command):
 
 def test_zz_case_counts():
     """The module docstring's counts: 2 generate kills, 4 train kills, 7 damages, 3 writers."""
-    counts = {"generate kills": len(GENERATE_KILLS), "train kills": len(TRAIN_KILLS),
-              "damaged data sets": len(DAMAGES), "second writers": len(WRITERS)}
+    counts = {
+        "generate kills": len(GENERATE_KILLS),
+        "train kills": len(TRAIN_KILLS),
+        "damaged data sets": len(DAMAGES),
+        "second writers": len(WRITERS),
+    }
     print("fault-injection cases:", counts, "total", sum(counts.values()))
     assert counts == {"generate kills": 2, "train kills": 4, "damaged data sets": 7, "second writers": 3}
     assert sum(counts.values()) == 16
     assert "Cases (16," in (__doc__ or "")
-

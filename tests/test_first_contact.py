@@ -34,8 +34,20 @@ def test_unsupported_variant_is_one_line_exit_2(variant, tmp_path, capsys):
     import mitsuba as mi
 
     before = mi.variant()
-    code = main(["--variant", variant, "exemplars", "--point-light", "--res", "16", "--spp", "1",
-                 "--out", str(tmp_path / "ex")])
+    code = main(
+        [
+            "--variant",
+            variant,
+            "exemplars",
+            "--point-light",
+            "--res",
+            "16",
+            "--spp",
+            "1",
+            "--out",
+            str(tmp_path / "ex"),
+        ]
+    )
     line = _error_line(capsys.readouterr().err, "exemplars")
     assert code == 2
     assert line.endswith(f"unsupported variant '{variant}'; use llvm_ad_rgb or cuda_ad_rgb"), line
@@ -49,8 +61,18 @@ def test_cuda_without_a_gpu_says_so(tmp_path, capsys, monkeypatch):
 
     monkeypatch.setattr(variant, "cuda_available", lambda: False)
     before = mi.variant()
-    code = main(["exemplars", "--variant", "cuda_ad_rgb", "--point-light", "--res", "16", "--out",
-                 str(tmp_path / "ex")])
+    code = main(
+        [
+            "exemplars",
+            "--variant",
+            "cuda_ad_rgb",
+            "--point-light",
+            "--res",
+            "16",
+            "--out",
+            str(tmp_path / "ex"),
+        ]
+    )
     line = _error_line(capsys.readouterr().err, "exemplars")
     assert code == 2
     assert "variant 'cuda_ad_rgb': no CUDA device" in line and "use llvm_ad_rgb" in line, line
@@ -62,12 +84,27 @@ def test_unsupported_variant_from_the_environment(tmp_path):
     import subprocess
 
     env = {**os.environ, "EBR_VARIANT": "scalar_rgb"}
-    r = subprocess.run([sys.executable, "-m", "ebr_mitsuba.cli", "exemplars", "--point-light", "--out",
-                        str(tmp_path / "ex")], cwd=REPO, env=env, capture_output=True, text=True, timeout=120)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "ebr_mitsuba.cli",
+            "exemplars",
+            "--point-light",
+            "--out",
+            str(tmp_path / "ex"),
+        ],
+        cwd=REPO,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert r.returncode == 2, r.stderr
     line = _error_line(r.stderr, "exemplars")
-    assert line.endswith("unsupported variant 'scalar_rgb' (from $EBR_VARIANT); "
-                         "use llvm_ad_rgb or cuda_ad_rgb"), line
+    assert line.endswith(
+        "unsupported variant 'scalar_rgb' (from $EBR_VARIANT); use llvm_ad_rgb or cuda_ad_rgb"
+    ), line
 
 
 def test_cuda_available_matches_drjit():
@@ -79,8 +116,23 @@ def test_cuda_available_matches_drjit():
 
 
 def test_supported_variant_still_accepted(tmp_path, capsys):
-    assert main(["--variant", "llvm_ad_rgb", "exemplars", "--point-light", "--res", "16", "--spp", "1",
-                 "--out", str(tmp_path / "ex")]) == 0
+    assert (
+        main(
+            [
+                "--variant",
+                "llvm_ad_rgb",
+                "exemplars",
+                "--point-light",
+                "--res",
+                "16",
+                "--spp",
+                "1",
+                "--out",
+                str(tmp_path / "ex"),
+            ]
+        )
+        == 0
+    )
 
 
 # -- item 13: ebr bench -------------------------------------------------------------------------------
@@ -230,8 +282,9 @@ def _norm(name: str) -> str:
 
 def test_every_imported_package_is_declared():
     project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
-    specs = list(project["dependencies"]) + [d for group in project["optional-dependencies"].values()
-                                             for d in group]
+    specs = list(project["dependencies"]) + [
+        d for group in project["optional-dependencies"].values() for d in group
+    ]
     declared = {_norm(re.match(r"[A-Za-z0-9_.-]+", s).group(0)) for s in specs}
     dists = importlib.metadata.packages_distributions()
     missing = {}
@@ -250,8 +303,12 @@ def test_validate_docs_state_the_default_spp():
     from ebr_mitsuba.validate import DEFAULT_SPP
 
     text = (REPO / "docs" / "validate.md").read_text()
-    stated = [int(n) for line in text.splitlines() if "ebr validate" in line and "--spp" not in line
-              for n in re.findall(r"(\d+) spp", line)]
+    stated = [
+        int(n)
+        for line in text.splitlines()
+        if "ebr validate" in line and "--spp" not in line
+        for n in re.findall(r"(\d+) spp", line)
+    ]
     assert stated, "docs/validate.md should state the default spp of a plain `ebr validate`"
     assert set(stated) == {DEFAULT_SPP}, (stated, DEFAULT_SPP)
     assert f"(default {DEFAULT_SPP})" in " ".join(_validate_help().split())

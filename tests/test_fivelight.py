@@ -45,8 +45,23 @@ def dl_model(tiny5, tmp_path_factory) -> Path:
 def capture5(tmp_path_factory) -> Path:
     """``ebr capture --setup five-light`` at 32² (4 spp): light0..light4.exr + capture.json."""
     out = tmp_path_factory.mktemp("cap") / "cap5"
-    code = main(["capture", "--material", "procedural:wood:3", "--env", "procedural:1", "--setup",
-                 "five-light", "--res", "32", "--spp", "4", "--out", str(out)])
+    code = main(
+        [
+            "capture",
+            "--material",
+            "procedural:wood:3",
+            "--env",
+            "procedural:1",
+            "--setup",
+            "five-light",
+            "--res",
+            "32",
+            "--spp",
+            "4",
+            "--out",
+            str(out),
+        ]
+    )
     assert code == 0
     return out
 
@@ -151,8 +166,17 @@ def test_estimate_lights_on_a_data_set_sample_matches_the_network(dl_model, tiny
     exposure = float(record["camera"]["exposure"])
     intensity = 10.0 * exposure
     out = tmp_path / "est"
-    code, summary, err = _estimate(capsys, "--lights", sample / "photos", "--checkpoint", dl_model,
-                                   "--flash-intensity", intensity, "--out", out)
+    code, summary, err = _estimate(
+        capsys,
+        "--lights",
+        sample / "photos",
+        "--checkpoint",
+        dl_model,
+        "--flash-intensity",
+        intensity,
+        "--out",
+        out,
+    )
     assert code == 0, err
     assert summary["capture"] == "five-light" and summary["resolution"] == 32 and summary["model_grid"] == 32
     assert summary["inputs"]["geometry"] == "default five-light geometry"
@@ -178,16 +202,20 @@ def test_estimate_lights_on_a_data_set_sample_matches_the_network(dl_model, tiny
     np.testing.assert_allclose(got["normal"], want.normal, atol=1e-5)
     # residual = re-render − photo, in the photos' units
     photo0 = read_image(sample / "photos" / "light0.png", "srgb")
-    np.testing.assert_allclose(read_exr(out / "residual" / "light0.exr"),
-                               read_exr(out / "rerender" / "light0.exr") - photo0, atol=1e-5)
+    np.testing.assert_allclose(
+        read_exr(out / "residual" / "light0.exr"),
+        read_exr(out / "rerender" / "light0.exr") - photo0,
+        atol=1e-5,
+    )
 
 
 def test_estimate_lights_on_a_capture(dl_model, capture5, tmp_path, capsys):
     """An `ebr capture --setup five-light` directory; its five files in another order; the same
     photos brighter with a proportionally stronger light (the same maps: the reference exposure);
     the photos away from capture.json (default geometry, fitted intensity)."""
-    code, by_dir, err = _estimate(capsys, "--lights", capture5, "--checkpoint", dl_model,
-                                  "--out", tmp_path / "a")
+    code, by_dir, err = _estimate(
+        capsys, "--lights", capture5, "--checkpoint", dl_model, "--out", tmp_path / "a"
+    )
     assert code == 0, err
     assert by_dir["inputs"]["geometry"] == str(capture5 / "capture.json")
     assert by_dir["flash"]["light0"] == {"intensity": 10.0, "source": "capture.json"}
@@ -195,8 +223,9 @@ def test_estimate_lights_on_a_capture(dl_model, capture5, tmp_path, capsys):
     diffuse = read_exr(tmp_path / "a" / "maps" / "diffuse.exr")
 
     files = [capture5 / f"light{k}.exr" for k in (3, 0, 4, 1, 2)]
-    code, shuffled, err = _estimate(capsys, "--lights", *files, "--checkpoint", dl_model,
-                                    "--out", tmp_path / "b")
+    code, shuffled, err = _estimate(
+        capsys, "--lights", *files, "--checkpoint", dl_model, "--out", tmp_path / "b"
+    )
     assert code == 0, err
     assert list(shuffled["inputs"]["paths"]) == [f"light{k}" for k in range(5)]
     assert any("light order of" in w for w in shuffled["warnings"])
@@ -206,16 +235,19 @@ def test_estimate_lights_on_a_capture(dl_model, capture5, tmp_path, capsys):
     bright.mkdir()
     for k in range(5):
         write_exr(bright / f"light{k}.exr", 4.0 * read_exr(capture5 / f"light{k}.exr"))
-    code, scaled, err = _estimate(capsys, "--lights", bright, "--checkpoint", dl_model,
-                                  "--flash-intensity", 40, "--out", tmp_path / "c")
+    code, scaled, err = _estimate(
+        capsys, "--lights", bright, "--checkpoint", dl_model, "--flash-intensity", 40, "--out", tmp_path / "c"
+    )
     assert code == 0, err
     assert scaled["exposure"]["to_reference"]["light0"] == pytest.approx(0.25)
     np.testing.assert_allclose(read_exr(tmp_path / "c" / "maps" / "diffuse.exr"), diffuse, atol=1e-5)
     assert scaled["rerender_error"]["network"]["mean"]["rmse"] == pytest.approx(
-        4.0 * by_dir["rerender_error"]["network"]["mean"]["rmse"], rel=1e-3)
+        4.0 * by_dir["rerender_error"]["network"]["mean"]["rmse"], rel=1e-3
+    )
 
-    code, fitted, err = _estimate(capsys, "--lights", bright, "--checkpoint", dl_model,
-                                  "--out", tmp_path / "d")
+    code, fitted, err = _estimate(
+        capsys, "--lights", bright, "--checkpoint", dl_model, "--out", tmp_path / "d"
+    )
     assert code == 0, err
     assert fitted["inputs"]["geometry"] == "default five-light geometry"
     assert {v["source"] for v in fitted["flash"].values()} == {"fitted"}
@@ -263,8 +295,10 @@ def _bad_setups(capture5: Path, tmp: Path) -> dict:
         "unreadable file": ([broken], str(broken / "light1.exr")),
         "missing file": (files[:4] + [tmp / "light4.exr"], f"--lights {tmp / 'light4.exr'}: no such file"),
         "missing light in a folder": ([nojson], f"--lights {nojson}: no capture.json and no light4 photo"),
-        "same file twice": ([nojson / f.name for f in files[:4]] + [nojson / "light0.exr"],
-                            "the same file is given for two lights"),
+        "same file twice": (
+            [nojson / f.name for f in files[:4]] + [nojson / "light0.exr"],
+            "the same file is given for two lights",
+        ),
         "two files of one name": (files[:4] + [nojson / "light0.exr"], "two photos share a file name"),
     }
 
@@ -292,8 +326,9 @@ def test_estimate_lights_model_and_flag_errors(dl_model, capture5, tmp_path, cap
     other = torch.load(dl_model, weights_only=True)
     other["kind"] = "ebrenv"
     torch.save(other, tmp_path / "ebrenv.pt")
-    code, _, err = _estimate(capsys, "--lights", capture5, "--checkpoint", tmp_path / "ebrenv.pt",
-                             "--out", out)
+    code, _, err = _estimate(
+        capsys, "--lights", capture5, "--checkpoint", tmp_path / "ebrenv.pt", "--out", out
+    )
     assert code == 2 and len(_lines(err)) == 1 and "wrong kind" in err and "ebrenv.pt" in err
     # options of the flash/no-flash estimate
     for extra in (["--noflash", capture5 / "light0.exr"], ["--refine-steps", "5"], ["--fov", "50"]):

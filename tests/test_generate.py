@@ -55,8 +55,9 @@ type = "procedural"
 """
 
 
-def write_config(directory: Path, renderer: str = "mitsuba", extra: str = "",
-                 name: str = "tiny.toml") -> Path:
+def write_config(
+    directory: Path, renderer: str = "mitsuba", extra: str = "", name: str = "tiny.toml"
+) -> Path:
     path = directory / name
     path.write_text(TINY.format(renderer=renderer) + extra)
     return path
@@ -64,8 +65,11 @@ def write_config(directory: Path, renderer: str = "mitsuba", extra: str = "",
 
 def file_hashes(root: Path) -> dict:
     """{relative path: sha256} of every file but the documented non-deterministic timing.json."""
-    return {p.relative_to(root).as_posix(): store.sha256_file(p) for p in sorted(root.rglob("*"))
-            if p.is_file() and p.name != store.TIMING_JSON}
+    return {
+        p.relative_to(root).as_posix(): store.sha256_file(p)
+        for p in sorted(root.rglob("*"))
+        if p.is_file() and p.name != store.TIMING_JSON
+    }
 
 
 @pytest.fixture(scope="module")
@@ -80,6 +84,7 @@ def reference(tmp_path_factory):
 
 
 # -- the data set ---------------------------------------------------------------------------------
+
 
 def test_layout_and_verify(reference):
     root, _ = reference
@@ -199,8 +204,17 @@ def test_kill_midway_and_resume(reference, tmp_path):
     verifies and its first samples equal the uninterrupted reference run's."""
     root_a, cfg_path = reference
     out = tmp_path / "K"
-    cmd = [sys.executable, "-m", "ebr_mitsuba.cli", "generate", str(cfg_path), "--out", str(out),
-           "--count", "40"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "ebr_mitsuba.cli",
+        "generate",
+        str(cfg_path),
+        "--out",
+        str(out),
+        "--count",
+        "40",
+    ]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 120
     while not store.is_complete(out, 1) and time.monotonic() < deadline and proc.poll() is None:
@@ -216,20 +230,25 @@ def test_kill_midway_and_resume(reference, tmp_path):
     a, b = file_hashes(root_a), file_hashes(out)
     for i in range(COUNT):
         prefix = store.sample_dirname(i) + "/"
-        assert {k: v for k, v in a.items() if k.startswith(prefix)} == \
-            {k: v for k, v in b.items() if k.startswith(prefix)}
+        assert {k: v for k, v in a.items() if k.startswith(prefix)} == {
+            k: v for k, v in b.items() if k.startswith(prefix)
+        }
 
 
 # -- verify ---------------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("damage, needle", [
-    ("corrupt", "checksum"),
-    ("missing", "missing"),
-    ("extra", "not listed"),
-    ("nan", "NaN"),
-    ("no_sample", "sample directory missing"),
-    ("index", "index.json"),
-])
+
+@pytest.mark.parametrize(
+    "damage, needle",
+    [
+        ("corrupt", "checksum"),
+        ("missing", "missing"),
+        ("extra", "not listed"),
+        ("nan", "NaN"),
+        ("no_sample", "sample directory missing"),
+        ("index", "index.json"),
+    ],
+)
 def test_verify_catches_damage(reference, tmp_path, damage, needle, capsys):
     root_a, _ = reference
     root = tmp_path / "D"
@@ -282,20 +301,30 @@ def test_cli_verify_ok_and_sheet(reference, tmp_path, capsys):
 
 # -- configs ----------------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("extra, needles", [
-    ("\n[camera]\nexposure_evv = [0, 1]\n", ["camera.exposure_evv", "exposure_ev"]),
-    ("\n[render2]\nspp = 3\n", ["render2"]),
-    ("\n[[materials]]\ntype = \"procedural\"\nweight = \"heavy\"\n", ["materials[1].weight", "number"]),
-    ("\n[[materials]]\ntype = \"directory\"\npaths = [\"no/such/dir\"]\n",
-     ["materials[1].paths[0]", "no/such/dir"]),
-    ("\n[[environments]]\ntype = \"equirect\"\npaths = [\"missing.hdr\"]\n", ["environments[1].paths[0]",
-                                                                             "missing.hdr"]),
-    ("\n[[environments]]\ntype = \"sky\"\n", ["environments[1].type", "procedural"]),
-    ("\n[[materials]]\ntype = \"procedural\"\nfamilies = [\"lava\"]\n", ["families[0]", "lava"]),
-    ("\n[capture]\nsetup = \"far\"\n", ["capture.setup", "near-far"]),
-    ("\n[[materials]]\ntype = \"directory\"\npaths = [\"${EBR_NOT_SET_ANYWHERE}/x\"]\n",
-     ["EBR_NOT_SET_ANYWHERE"]),
-])
+
+@pytest.mark.parametrize(
+    "extra, needles",
+    [
+        ("\n[camera]\nexposure_evv = [0, 1]\n", ["camera.exposure_evv", "exposure_ev"]),
+        ("\n[render2]\nspp = 3\n", ["render2"]),
+        ('\n[[materials]]\ntype = "procedural"\nweight = "heavy"\n', ["materials[1].weight", "number"]),
+        (
+            '\n[[materials]]\ntype = "directory"\npaths = ["no/such/dir"]\n',
+            ["materials[1].paths[0]", "no/such/dir"],
+        ),
+        (
+            '\n[[environments]]\ntype = "equirect"\npaths = ["missing.hdr"]\n',
+            ["environments[1].paths[0]", "missing.hdr"],
+        ),
+        ('\n[[environments]]\ntype = "sky"\n', ["environments[1].type", "procedural"]),
+        ('\n[[materials]]\ntype = "procedural"\nfamilies = ["lava"]\n', ["families[0]", "lava"]),
+        ('\n[capture]\nsetup = "far"\n', ["capture.setup", "near-far"]),
+        (
+            '\n[[materials]]\ntype = "directory"\npaths = ["${EBR_NOT_SET_ANYWHERE}/x"]\n',
+            ["EBR_NOT_SET_ANYWHERE"],
+        ),
+    ],
+)
 def test_bad_config_exits_2_naming_the_key(tmp_path, capsys, extra, needles):
     cfg = write_config(tmp_path, extra=extra)
     rc = main(["generate", str(cfg), "--out", str(tmp_path / "out")])
@@ -309,9 +338,11 @@ def test_bad_config_exits_2_naming_the_key(tmp_path, capsys, extra, needles):
 
 def test_bad_types_and_counts(tmp_path, capsys):
     text = TINY.format(renderer="mitsuba")
-    for bad, needle in ((text.replace("resolution = 32", "resolution = \"32\""), "dataset.resolution"),
-                        (text.replace(f"count = {COUNT}", "count = 0"), "dataset.count"),
-                        (text.replace("spp = 2", "spp = 2.5"), "render.spp")):
+    for bad, needle in (
+        (text.replace("resolution = 32", 'resolution = "32"'), "dataset.resolution"),
+        (text.replace(f"count = {COUNT}", "count = 0"), "dataset.count"),
+        (text.replace("spp = 2", "spp = 2.5"), "render.spp"),
+    ):
         path = tmp_path / "bad.toml"
         path.write_text(bad)
         assert main(["generate", str(path), "--out", str(tmp_path / "o")]) == 2
@@ -322,8 +353,13 @@ def test_bad_types_and_counts(tmp_path, capsys):
     assert main(["generate", str(tmp_path / "absent.toml"), "--out", str(tmp_path / "o")]) == 2
     assert "absent.toml" in capsys.readouterr().err
     with pytest.raises(ConfigError, match="camera.quantize"):
-        parse_config({"camera": {"clip": False}, "materials": [{"type": "procedural"}],
-                      "environments": [{"type": "none"}]})
+        parse_config(
+            {
+                "camera": {"clip": False},
+                "materials": [{"type": "procedural"}],
+                "environments": [{"type": "none"}],
+            }
+        )
 
 
 def test_bundled_example_configs_parse(monkeypatch, data_dir):
@@ -348,6 +384,7 @@ def test_cli_generate_summary(tmp_path, capsys):
 
 # -- sources ----------------------------------------------------------------------------------------
 
+
 def test_real_material_sources(tmp_path, data_dir):
     """Directory sources on the shared texture sets: maps at the data-set size, in range."""
     from ebr_mitsuba.data.sample import Plan, draw_sample
@@ -358,7 +395,7 @@ def test_real_material_sources(tmp_path, data_dir):
 type = "directory"
 weight = 1000.0
 augment = true
-paths = ["{mats / 'wood_floor'}", "{mats / 'painted_plaster_wall'}", "{mats / 'Metal009'}"]
+paths = ["{mats / "wood_floor"}", "{mats / "painted_plaster_wall"}", "{mats / "Metal009"}"]
 """
     cfg = load_config(write_config(tmp_path, extra=extra))
     plan = Plan(cfg, {})
@@ -420,12 +457,20 @@ paths = ["{hdr}"]
 
 # -- camera ------------------------------------------------------------------------------------------
 
+
 def test_camera_simulation_without_noise():
     from ebr_mitsuba.data.camera import photo_linear, quantize
     from ebr_mitsuba.data.sample import CameraDraw
 
-    cam = CameraDraw(exposure=2.0, white_balance=(1.1, 1.0, 0.9), read_noise=0.0, shot_noise=0.0,
-                     clip=True, quantize=True, noise_seed=0)
+    cam = CameraDraw(
+        exposure=2.0,
+        white_balance=(1.1, 1.0, 0.9),
+        read_noise=0.0,
+        shot_noise=0.0,
+        clip=True,
+        quantize=True,
+        noise_seed=0,
+    )
     x = np.linspace(0, 1, 3 * 16, dtype=np.float32).reshape(4, 4, 3)
     got = photo_linear(x, cam, np.random.default_rng(0))
     np.testing.assert_allclose(got, np.clip(x * 2.0 * np.array([1.1, 1.0, 0.9]), 0, 1), rtol=1e-6)
@@ -434,6 +479,7 @@ def test_camera_simulation_without_noise():
 
 
 # -- torch ------------------------------------------------------------------------------------------
+
 
 def test_torch_dataset_shapes(reference):
     import torch
@@ -446,9 +492,16 @@ def test_torch_dataset_shapes(reference):
     item = ds[1]
     k = ds.max_lobes
     shapes = {
-        "photos": (2, 3, RES, RES), "flash_only": (1, 3, RES, RES), "env_exemplars": (2, 3, RES, RES),
-        "point_exemplars": (1, 3, RES, RES), "maps": (10, RES, RES), "sg": (k, 7), "sg_mask": (k,),
-        "exposure": (), "white_balance": (3,), "index": (),
+        "photos": (2, 3, RES, RES),
+        "flash_only": (1, 3, RES, RES),
+        "env_exemplars": (2, 3, RES, RES),
+        "point_exemplars": (1, 3, RES, RES),
+        "maps": (10, RES, RES),
+        "sg": (k, 7),
+        "sg_mask": (k,),
+        "exposure": (),
+        "white_balance": (3,),
+        "index": (),
     }
     assert {name: tuple(t.shape) for name, t in item.items()} == shapes
     assert all(t.dtype == torch.float32 for n, t in item.items() if n != "index")
@@ -459,6 +512,7 @@ def test_torch_dataset_shapes(reference):
 
 
 # -- Ray ----------------------------------------------------------------------------------------------
+
 
 def test_ray_missing_is_one_clear_line(reference, tmp_path, capsys, monkeypatch):
     _, cfg_path = reference
@@ -485,8 +539,9 @@ def test_ray_path_gives_the_same_files(reference, tmp_path, fake_ray):
     """The whole --ray path (generate → ray_backend → workers.make_shard in other processes →
     files written by the driver) with the fake Ray: the reference's bytes (= the pool's, above)."""
     root_a, cfg_path = reference
-    summary = generate(load_config(cfg_path), tmp_path / "ray", ray="local", workers=2, shard_size=3,
-                       progress=False)
+    summary = generate(
+        load_config(cfg_path), tmp_path / "ray", ray="local", workers=2, shard_size=3, progress=False
+    )
     assert (summary.backend, summary.generated) == ("ray", COUNT)
     assert file_hashes(tmp_path / "ray") == file_hashes(root_a)
     assert fake_ray.calls == [("init", None, 2), ("remote", {"num_cpus": 1, "max_retries": 2}), ("shutdown",)]
@@ -512,11 +567,16 @@ def test_ray_errors_are_one_line(tmp_path, fake_ray):
 
 @pytest.mark.slow
 def test_ray_local_cluster_gives_the_same_files(reference, tmp_path):
-    ray = pytest.importorskip("ray", reason="Ray is not installed (optional extra: "
-                                            "pip install 'ebr-mitsuba[ray]')")
+    ray = pytest.importorskip(
+        "ray", reason="Ray is not installed (optional extra: pip install 'ebr-mitsuba[ray]')"
+    )
     root_a, cfg_path = reference
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False,
-             runtime_env={"env_vars": {"PYTHONPATH": os.pathsep.join(sys.path)}})
+    ray.init(
+        num_cpus=2,
+        include_dashboard=False,
+        log_to_driver=False,
+        runtime_env={"env_vars": {"PYTHONPATH": os.pathsep.join(sys.path)}},
+    )
     try:
         summary = generate(load_config(cfg_path), tmp_path / "ray", ray="auto", shard_size=2, progress=False)
     finally:
@@ -541,8 +601,10 @@ def test_metering_sets_the_exposure_from_the_brightest_shot(tmp_path):
     from ebr_mitsuba.data.sample import draw_sample
     from ebr_mitsuba.train.data import load_training_data
 
-    extra = ('\n[camera]\nmeter = 0.5\nexposure_ev = [0.0, 0.0]\nread_noise = [0.0, 0.0]\n'
-             'shot_noise = [0.0, 0.0]\n')
+    extra = (
+        "\n[camera]\nmeter = 0.5\nexposure_ev = [0.0, 0.0]\nread_noise = [0.0, 0.0]\n"
+        "shot_noise = [0.0, 0.0]\n"
+    )
     cfg = load_config(write_config(tmp_path, "fast", extra))
     root = tmp_path / "metered"
     generate(cfg, root, workers=1, progress=False)
@@ -562,6 +624,7 @@ def test_metering_sets_the_exposure_from_the_brightest_shot(tmp_path):
 
     td = load_training_data(root)  # the loader's photos × exposure are the stored photos
     item = GeneratedDataset(root)[0]
-    np.testing.assert_allclose(td.photos[0].numpy() * exposures[0], item["photos"].numpy(),
-                               rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(
+        td.photos[0].numpy() * exposures[0], item["photos"].numpy(), rtol=1e-5, atol=1e-7
+    )
     np.testing.assert_allclose(td.gains[0].numpy(), item["white_balance"].numpy())

@@ -97,8 +97,13 @@ def shipped_packages() -> list[str]:
 
 def test_the_package_import_graph_has_no_cycle():
     modules = modules_of(shipped_packages())
-    assert {"ebr_mitsuba.data.generate", "ebr_mitsuba.data.ray_backend", "ebr_mitsuba.data.workers",
-            "ebr_mitsuba.plugins", "ebr_mitsuba.train.trainer"} <= modules.keys()
+    assert {
+        "ebr_mitsuba.data.generate",
+        "ebr_mitsuba.data.ray_backend",
+        "ebr_mitsuba.data.workers",
+        "ebr_mitsuba.plugins",
+        "ebr_mitsuba.train.trainer",
+    } <= modules.keys()
     graph = import_graph(modules)
     assert "ebr_mitsuba.data.workers" in graph["ebr_mitsuba.data.generate"]
     assert not [m for m in graph["ebr_mitsuba.data.ray_backend"] if m.startswith("ebr_mitsuba.data")]
@@ -113,11 +118,13 @@ def test_a_lazy_import_cycle_is_found(tmp_path, monkeypatch):
     (package / "__init__.py").write_text("")
     (package / "sub" / "__init__.py").write_text("")
     (package / "sub" / "gen.py").write_text("from . import backend\nVALUE = 1\n")
-    (package / "sub" / "backend.py").write_text(textwrap.dedent("""
+    (package / "sub" / "backend.py").write_text(
+        textwrap.dedent("""
         def run():
             from .gen import VALUE  # the lazy half of the cycle
             return VALUE
-    """))
+    """)
+    )
     (package / "leaf.py").write_text("import cyclepkg.sub.gen\n")
     monkeypatch.syspath_prepend(str(tmp_path))
     try:

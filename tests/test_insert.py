@@ -21,8 +21,11 @@ from ebr_mitsuba.svbrdf import SVBRDF
 RES = 48
 SQ = 0.5**0.5
 # A sharp sun 45° above +x (irradiance ≈ 3 on the plane) and a dim sky (≈ 0.4).
-SUN_ENV = SGEnvironment(np.array([[SQ, 0.0, SQ], [0.0, 0.0, 1.0]]), np.array([300.0, 1.0]),
-                        np.array([[200.0, 200.0, 200.0], [0.2, 0.2, 0.2]]))
+SUN_ENV = SGEnvironment(
+    np.array([[SQ, 0.0, SQ], [0.0, 0.0, 1.0]]),
+    np.array([300.0, 1.0]),
+    np.array([[200.0, 200.0, 200.0], [0.2, 0.2, 0.2]]),
+)
 CUBE_OBJ = """# unit cube, y up
 v -1 0 -1\nv 1 0 -1\nv 1 2 -1\nv -1 2 -1\nv -1 0 1\nv 1 0 1\nv 1 2 1\nv -1 2 1
 f 1 3 2\nf 1 4 3\nf 5 6 7\nf 5 7 8\nf 1 2 6\nf 1 6 5\nf 4 8 7\nf 4 7 3\nf 1 5 8\nf 1 8 4\nf 2 3 7\nf 2 7 6
@@ -49,8 +52,9 @@ def sun_capture(tmp_path_factory) -> Path:
     return _capture(tmp_path_factory.mktemp("insert") / "cap", SUN_ENV)
 
 
-def _fake_estimate(path: Path, capture_dir: Path, diffuse: float | None = None, env: bool = True,
-                   maps: bool = True) -> Path:
+def _fake_estimate(
+    path: Path, capture_dir: Path, diffuse: float | None = None, env: bool = True, maps: bool = True
+) -> Path:
     """An estimate directory made of a capture's own maps (``diffuse``: replace the albedo)."""
     from ebr_mitsuba.materials import load_material_dir, save_material_dir
 
@@ -61,8 +65,9 @@ def _fake_estimate(path: Path, capture_dir: Path, diffuse: float | None = None, 
     if maps:
         truth = load_material_dir(capture_dir / "maps")
         if diffuse is not None:
-            truth = SVBRDF(truth.normal, np.full_like(truth.diffuse, diffuse), truth.specular,
-                           truth.roughness)
+            truth = SVBRDF(
+                truth.normal, np.full_like(truth.diffuse, diffuse), truth.specular, truth.roughness
+            )
         save_material_dir(truth, path / "maps")
     return path
 
@@ -99,8 +104,21 @@ def test_object_casts_a_shadow(tmp_path, capsys, sun_capture, material):
     images = {}
     for obj in ("sphere", "none"):
         out = tmp_path / f"{obj}.exr"
-        code, _, err = run_cli(capsys, "insert", sun_capture, "--out", out, "--object", obj,
-                               "--material", material, "--res", RES, "--spp", 8)
+        code, _, err = run_cli(
+            capsys,
+            "insert",
+            sun_capture,
+            "--out",
+            out,
+            "--object",
+            obj,
+            "--material",
+            material,
+            "--res",
+            RES,
+            "--spp",
+            8,
+        )
         assert code == 0, err
         images[obj] = read_exr(out).mean(axis=-1)
 
@@ -122,8 +140,20 @@ def test_mesh_object_and_oblique_view(tmp_path, capsys, sun_capture):
     images = {}
     for obj in (mesh, "none"):
         out = tmp_path / f"{Path(str(obj)).stem}.exr"
-        code, stdout, err = run_cli(capsys, "insert", sun_capture, "--out", out, "--object", obj,
-                                    "--elevation", 40, "--spp", 4, "--json")
+        code, stdout, err = run_cli(
+            capsys,
+            "insert",
+            sun_capture,
+            "--out",
+            out,
+            "--object",
+            obj,
+            "--elevation",
+            40,
+            "--spp",
+            4,
+            "--json",
+        )
         assert code == 0, err
         images[str(obj)] = read_exr(out)
     summary = json.loads(stdout)
@@ -138,23 +168,51 @@ def test_truth_equal_to_estimate_gives_zero(tmp_path, capsys, sun_capture):
     fake = _fake_estimate(tmp_path / "same", sun_capture)
     for estimate in (sun_capture, fake):
         out = tmp_path / f"{estimate.name}.exr"
-        code, stdout, err = run_cli(capsys, "insert", estimate, "--truth", sun_capture, "--out", out,
-                                    "--spp", 4, "--material", "glossy", "--json")
+        code, stdout, err = run_cli(
+            capsys,
+            "insert",
+            estimate,
+            "--truth",
+            sun_capture,
+            "--out",
+            out,
+            "--spp",
+            4,
+            "--material",
+            "glossy",
+            "--json",
+        )
         assert code == 0, err
         summary = json.loads(stdout)
         assert summary["rmse"] == 0.0 and summary["rel_rmse"] == 0.0
-        assert summary["files"] == [str(out), str(tmp_path / f"{estimate.name}_truth.exr"),
-                                    str(tmp_path / f"{estimate.name}_compare.png")]
+        assert summary["files"] == [
+            str(out),
+            str(tmp_path / f"{estimate.name}_truth.exr"),
+            str(tmp_path / f"{estimate.name}_compare.png"),
+        ]
         assert all(Path(f).is_file() for f in summary["files"])
         assert np.array_equal(read_exr(out), read_exr(summary["files"][1]))
-    code, stdout, err = run_cli(capsys, "insert", fake, "--truth", sun_capture, "--out", tmp_path / "n.png",
-                                "--spp", 4, "--truth-seed", 1, "--json")
+    code, stdout, err = run_cli(
+        capsys,
+        "insert",
+        fake,
+        "--truth",
+        sun_capture,
+        "--out",
+        tmp_path / "n.png",
+        "--spp",
+        4,
+        "--truth-seed",
+        1,
+        "--json",
+    )
     assert code == 0, err
     noise = json.loads(stdout)["rmse"]
     assert noise > 0
     other = _fake_estimate(tmp_path / "other", sun_capture, diffuse=0.2)
-    code, stdout, err = run_cli(capsys, "insert", other, "--truth", sun_capture, "--out", tmp_path / "o.png",
-                                "--spp", 4, "--json")
+    code, stdout, err = run_cli(
+        capsys, "insert", other, "--truth", sun_capture, "--out", tmp_path / "o.png", "--spp", 4, "--json"
+    )
     assert code == 0, err
     assert json.loads(stdout)["rmse"] > 0.05  # albedo 0.2 instead of 0.5 under a bright sun
 
@@ -166,8 +224,9 @@ def test_on_the_output_of_ebr_estimate(tmp_path, capsys, monkeypatch):
     monkeypatch.setitem(sys.modules, "ebr_mitsuba.train.inference", fake_inference(32))
     cap = _capture(tmp_path / "cap", SUN_ENV)
     est = tmp_path / "est"
-    code, _, err = run_cli(capsys, "estimate", "--flash", cap / "flash.exr", "--noflash", cap / "noflash.exr",
-                           "--out", est)
+    code, _, err = run_cli(
+        capsys, "estimate", "--flash", cap / "flash.exr", "--noflash", cap / "noflash.exr", "--out", est
+    )
     assert code == 0, err
     out = tmp_path / "ins.png"
     code, stdout, err = run_cli(capsys, "insert", est, "--truth", cap, "--out", out, "--spp", 4, "--json")
@@ -235,15 +294,31 @@ def test_bad_input_exits_2_with_one_line_and_writes_nothing(tmp_path, capsys, su
 def test_shipped_model_estimate_then_insert(tmp_path, capsys):
     """The shipped EBREnv model on a 64² procedural capture, then the insertion against the truth."""
     cap = tmp_path / "cap"
-    code, _, err = run_cli(capsys, "capture", "--material", "procedural:tiles:1", "--env", "procedural:3",
-                           "--setup", "near", "--res", 64, "--spp", 16, "--out", cap)
+    code, _, err = run_cli(
+        capsys,
+        "capture",
+        "--material",
+        "procedural:tiles:1",
+        "--env",
+        "procedural:3",
+        "--setup",
+        "near",
+        "--res",
+        64,
+        "--spp",
+        16,
+        "--out",
+        cap,
+    )
     assert code == 0, err
     est = tmp_path / "est"
-    code, _, err = run_cli(capsys, "estimate", "--flash", cap / "flash.exr", "--noflash", cap / "noflash.exr",
-                           "--out", est)
+    code, _, err = run_cli(
+        capsys, "estimate", "--flash", cap / "flash.exr", "--noflash", cap / "noflash.exr", "--out", est
+    )
     assert code == 0, err
-    code, stdout, err = run_cli(capsys, "insert", est, "--truth", cap, "--out", tmp_path / "i.exr",
-                                "--spp", 16, "--json")
+    code, stdout, err = run_cli(
+        capsys, "insert", est, "--truth", cap, "--out", tmp_path / "i.exr", "--spp", 16, "--json"
+    )
     assert code == 0, err
     summary = json.loads(stdout)
     assert 0 < summary["rmse"] < float("inf") and summary["rel_rmse"] < 1.0

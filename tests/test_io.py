@@ -39,8 +39,13 @@ def _raises_naming(path, func, *args, match=None, **kwargs) -> str:
 
 def _random_svbrdf(rng, h=12, w=16) -> SVBRDF:
     n = np.concatenate([rng.uniform(-0.6, 0.6, (h, w, 2)), np.ones((h, w, 1))], axis=-1)
-    return SVBRDF(normal=n, diffuse=rng.random((h, w, 3)), specular=rng.random((h, w, 3)) * 0.5,
-                  roughness=rng.random((h, w)), source="random test material")
+    return SVBRDF(
+        normal=n,
+        diffuse=rng.random((h, w, 3)),
+        specular=rng.random((h, w, 3)) * 0.5,
+        roughness=rng.random((h, w)),
+        source="random test material",
+    )
 
 
 def _write_png_codes(path, codes):
@@ -57,6 +62,7 @@ def _write_png_codes(path, codes):
 
 
 # -- EXR ----------------------------------------------------------------------------------------
+
 
 def test_exr_round_trip_is_bit_exact(tmp_path, rng):
     rgb = (rng.standard_normal((7, 9, 3)) * 1e3).astype(np.float32)
@@ -81,8 +87,7 @@ def test_exr_half_channels_read_as_float32(tmp_path, rng):
 
     half = (rng.random((6, 5, 3)) * 100).astype(np.float16)
     pixels = {c: np.ascontiguousarray(half[..., k]) for k, c in enumerate("RGB")}
-    with OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage},
-                      pixels) as f:
+    with OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}, pixels) as f:
         f.write(str(tmp_path / "half.exr"))
     back = io.read_exr(tmp_path / "half.exr")
     assert back.dtype == np.float32
@@ -99,10 +104,11 @@ def test_exr_channel_selection_errors(tmp_path, rng):
 
 # -- PNG / JPEG -------------------------------------------------------------------------------------
 
+
 @pytest.mark.parametrize("bits,channels", [(8, 3), (8, 1), (16, 3), (16, 1)])
 def test_png_decoding_matches_colour_science(tmp_path, rng, bits, channels):
     dtype = np.uint8 if bits == 8 else np.uint16
-    top = 2 ** bits - 1
+    top = 2**bits - 1
     shape = (16, 16, 3) if channels == 3 else (16, 16)
     codes = rng.integers(0, top + 1, size=shape).astype(dtype)
     codes.flat[:4] = [0, 1, top - 1, top]
@@ -122,11 +128,13 @@ def test_png_decoding_matches_colour_science(tmp_path, rng, bits, channels):
 def test_write_png_round_trip_within_half_a_code(tmp_path, rng, bits):
     colour = _colour()
     img = rng.random((9, 11, 3)).astype(np.float32)
-    top = 2 ** bits - 1
+    top = 2**bits - 1
     io.write_png(tmp_path / "s.png", img, encode="srgb", bits=bits)
     back = io.read_ldr(tmp_path / "s.png", "srgb")
-    enc_err = np.abs(colour.cctf_encoding(back.astype(np.float64), function="sRGB")
-                     - colour.cctf_encoding(img.astype(np.float64), function="sRGB"))
+    enc_err = np.abs(
+        colour.cctf_encoding(back.astype(np.float64), function="sRGB")
+        - colour.cctf_encoding(img.astype(np.float64), function="sRGB")
+    )
     assert enc_err.max() <= 0.5 / top + 1e-6
     io.write_png(tmp_path / "l.png", img[..., :1], encode="linear", bits=bits)
     back = io.read_ldr(tmp_path / "l.png", "linear", expect_channels=1)
@@ -147,6 +155,7 @@ def test_jpeg_grey_and_rgb(tmp_path, rng):
 
 
 # -- bad image files ----------------------------------------------------------------------------
+
 
 def _truncate(src, dst, fraction=0.5):
     data = src.read_bytes()
@@ -178,21 +187,29 @@ def test_bad_image_files_raise_one_line_input_errors(tmp_path, rng):
         _raises_naming(junk, io.read_image, junk, match="cannot read")
 
     io.write_exr(tmp_path / "grey.exr", img[..., 0])
-    _raises_naming(tmp_path / "grey.exr", io.read_image, tmp_path / "grey.exr", expect_channels=3,
-                   match="has 1 channel")
-    _raises_naming(tmp_path / "ok.png", io.read_image, tmp_path / "ok.png", expect_channels=1,
-                   match="has 3 channels")
-    _raises_naming(tmp_path / "ok.exr", io.read_image, tmp_path / "ok.exr", expect_shape=(32, 64),
-                   match="expected 64x32")
+    _raises_naming(
+        tmp_path / "grey.exr", io.read_image, tmp_path / "grey.exr", expect_channels=3, match="has 1 channel"
+    )
+    _raises_naming(
+        tmp_path / "ok.png", io.read_image, tmp_path / "ok.png", expect_channels=1, match="has 3 channels"
+    )
+    _raises_naming(
+        tmp_path / "ok.exr", io.read_image, tmp_path / "ok.exr", expect_shape=(32, 64), match="expected 64x32"
+    )
     img[3, 5, 1] = np.nan
     img[7, 1, 0] = np.inf
     io.write_exr(tmp_path / "nan.exr", img)
-    _raises_naming(tmp_path / "nan.exr", io.read_image, tmp_path / "nan.exr",
-                   match="2 pixels NaN or Inf (first at row 3, column 5)")
+    _raises_naming(
+        tmp_path / "nan.exr",
+        io.read_image,
+        tmp_path / "nan.exr",
+        match="2 pixels NaN or Inf (first at row 3, column 5)",
+    )
     assert np.isnan(io.read_image(tmp_path / "nan.exr", allow_nonfinite=True)[3, 5, 1])
 
 
 # -- resampling -------------------------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("shape_in,shape_out", [((12, 8), (3, 4)), ((10, 7), (4, 3)), ((5, 6), (7, 9))])
 def test_resize_area_is_the_exact_box_average(rng, shape_in, shape_out):
@@ -209,12 +226,15 @@ def test_resize_area_is_the_exact_box_average(rng, shape_in, shape_out):
 
 # -- material directories ---------------------------------------------------------------------------
 
+
 def test_material_dir_round_trip(tmp_path, rng):
     svbrdf = _random_svbrdf(rng)
     out = mat.save_material_dir(svbrdf, tmp_path / "m", meta={"licence": "CC0", "seed": 7})
     names = sorted(p.name for p in out.iterdir())
-    assert names == sorted(["material.json"] + [f"{m}.{e}" for m in ("normal", "diffuse", "specular",
-                                                                      "roughness") for e in ("exr", "png")])
+    assert names == sorted(
+        ["material.json"]
+        + [f"{m}.{e}" for m in ("normal", "diffuse", "specular", "roughness") for e in ("exr", "png")]
+    )
     for name in ("normal", "diffuse", "specular", "roughness"):  # the files hold the exact maps
         stored = io.read_exr(out / f"{name}.exr")
         assert stored.tobytes() == getattr(svbrdf, name).reshape(stored.shape).tobytes(), name
@@ -332,6 +352,7 @@ def test_from_metal_rough_follows_gltf():
 
 # -- shared texture sets --------------------------------------------------------------------------
 
+
 def _integrability(normal: np.ndarray) -> float:
     """Correlation of ∂p/∂y with ∂q/∂x for slopes p = n_x/n_z, q = n_y/n_z (y up = row 0).
 
@@ -388,6 +409,7 @@ def test_load_material_dispatches(tmp_path, rng, data_dir):
 
 # -- environment maps -------------------------------------------------------------------------------
 
+
 def test_direction_uv_helpers_and_frame():
     rng = np.random.default_rng(5)
     uv = np.stack([rng.random(500), 0.01 + 0.98 * rng.random(500)], -1)
@@ -395,10 +417,11 @@ def test_direction_uv_helpers_and_frame():
     np.testing.assert_allclose(np.linalg.norm(d, axis=-1), 1.0, atol=1e-12)
     np.testing.assert_allclose(em.direction_to_uv(d), uv, atol=1e-12)
     # the frame: zenith row is +z; u = 0 → +y, 0.25 → +x, 0.5 → −y, 0.75 → −x
-    np.testing.assert_allclose(em.uv_to_direction([[0.3, 0.0], [0.0, 0.5], [0.25, 0.5], [0.5, 0.5],
-                                                  [0.75, 0.5], [0.9, 1.0]]),
-                               [[0, 0, 1], [0, 1, 0], [1, 0, 0], [0, -1, 0], [-1, 0, 0], [0, 0, -1]],
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        em.uv_to_direction([[0.3, 0.0], [0.0, 0.5], [0.25, 0.5], [0.5, 0.5], [0.75, 0.5], [0.9, 1.0]]),
+        [[0, 0, 1], [0, 1, 0], [1, 0, 0], [0, -1, 0], [-1, 0, 0], [0, 0, -1]],
+        atol=1e-12,
+    )
     m = rng.normal(size=(10, 3))
     np.testing.assert_allclose(em.world_to_map(em.map_to_world(m)), m, atol=1e-15)
     np.testing.assert_allclose(em.map_to_world([0, 1, 0]), [0, 0, 1])
@@ -445,14 +468,17 @@ def test_envmap_convention_matches_mitsuba_eval():
     # between texels, Mitsuba's interpolation equals EquirectMap.eval (the numpy reference)
     r = rng.normal(size=(2000, 3))
     r /= np.linalg.norm(r, axis=-1, keepdims=True)
-    np.testing.assert_allclose(_mitsuba_env_eval(emitter, r), 2.0 * em.EquirectMap(data).eval(r),
-                               rtol=0, atol=5e-5)
+    np.testing.assert_allclose(
+        _mitsuba_env_eval(emitter, r), 2.0 * em.EquirectMap(data).eval(r), rtol=0, atol=5e-5
+    )
 
 
 def test_sg_to_equirect_reproduces_the_sg_environment():
-    env = SGEnvironment(axis=[[0.3, -0.2, 0.9], [-0.7, 0.5, 0.1], [0.0, 0.1, -1.0]],
-                        sharpness=[4.0, 2.0, 1.0],
-                        amplitude=[[3.0, 2.0, 1.0], [0.5, 1.0, 1.5], [0.2, 0.2, 0.2]])
+    env = SGEnvironment(
+        axis=[[0.3, -0.2, 0.9], [-0.7, 0.5, 0.1], [0.0, 0.1, -1.0]],
+        sharpness=[4.0, 2.0, 1.0],
+        amplitude=[[3.0, 2.0, 1.0], [0.5, 1.0, 1.5], [0.2, 0.2, 0.2]],
+    )
     h, w = 64, 128
     data = em.sg_to_equirect(env, h, w)
     assert data.dtype == np.float32 and data.shape == (h, w, 3)
@@ -484,8 +510,10 @@ def test_load_equirect_on_shared_maps(data_dir):
     assert exr.shape == (250, 500)
     # the file-based emitter shows the file's texels at their texel positions
     sub = (slice(1, None, 37), slice(None, None, 41))
-    got = _mitsuba_env_eval(em.envmap_emitter_dict(data_dir / "envmaps" / "forest_slope_1k.hdr"),
-                            em.equirect_directions(512, 1024)[sub])
+    got = _mitsuba_env_eval(
+        em.envmap_emitter_dict(data_dir / "envmaps" / "forest_slope_1k.hdr"),
+        em.equirect_directions(512, 1024)[sub],
+    )
     ref = em.load_equirect(data_dir / "envmaps" / "forest_slope_1k.hdr").data[sub].reshape(-1, 3)
     np.testing.assert_allclose(got, ref, rtol=2e-3, atol=1e-5)
 

@@ -37,11 +37,16 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")  # conftest: torch on o
 
 def _const_maps(b=1, h=2, w=3, normal=(0.0, 0.0, 1.0), diffuse=0.5, specular=0.04, roughness=0.5):
     n = torch.tensor(normal, dtype=torch.float32).view(1, 3, 1, 1).expand(b, 3, h, w).clone()
-    return Maps(n, torch.full((b, 3, h, w), diffuse), torch.full((b, 3, h, w), specular),
-                torch.full((b, 1, h, w), roughness))
+    return Maps(
+        n,
+        torch.full((b, 3, h, w), diffuse),
+        torch.full((b, 3, h, w), specular),
+        torch.full((b, 1, h, w), roughness),
+    )
 
 
 # ------------------------------------------------------------------------------------- transforms
+
 
 def test_log_transforms():
     x = torch.tensor([0.0, 0.5, 3.0, -1.0])
@@ -49,8 +54,9 @@ def test_log_transforms():
     pos = x[:3]
     assert torch.allclose(signed_log(pos), log_input(pos) - math.log(LOG_EPS), atol=1e-5)
     assert torch.allclose(signed_log(-pos), -signed_log(pos))
-    assert torch.allclose(log_ratio(torch.tensor([1.0]), torch.tensor([0.0])),
-                          torch.tensor([math.log(1.01 / 0.01)]))
+    assert torch.allclose(
+        log_ratio(torch.tensor([1.0]), torch.tensor([0.0])), torch.tensor([math.log(1.01 / 0.01)])
+    )
     raw = torch.tensor([-1000.0, -1.0, 0.0, 1.0, 1000.0])
     img = log_radiance_to_image(raw)
     assert (img > 0).all() and torch.isfinite(img).all() and img[-1] <= math.exp(15.0) * 1.0001
@@ -66,6 +72,7 @@ def test_unit_normal_constraint():
 
 
 # ------------------------------------------------------------------------------------ parameter L1
+
 
 def test_parameter_l1_hand_value():
     a = _const_maps(diffuse=0.5, specular=0.04, roughness=0.5)
@@ -83,6 +90,7 @@ def test_parameter_l1_hand_value():
 
 # ----------------------------------------------------------------------------- view/light sampling
 
+
 def test_sampler_geometry_and_forced_highlights():
     pairs = sample_view_light_pairs(4, torch.Generator().manual_seed(3), count=10, highlights=5)
     assert pairs.cameras.shape == pairs.lights.shape == pairs.points.shape == (4, 10, 3)
@@ -91,8 +99,9 @@ def test_sampler_geometry_and_forced_highlights():
     assert torch.allclose(torch.linalg.vector_norm(pairs.cameras, dim=-1), distance)
     assert (pairs.cameras[..., 2] > 0).all() and (pairs.lights[..., 2] > 0).all()
     plain, hl = ~pairs.highlight, pairs.highlight
-    assert torch.allclose(torch.linalg.vector_norm(pairs.lights[:, plain], dim=-1),
-                          torch.full((4, 5), RENDER_DISTANCE))
+    assert torch.allclose(
+        torch.linalg.vector_norm(pairs.lights[:, plain], dim=-1), torch.full((4, 5), RENDER_DISTANCE)
+    )
     # Forced highlights: the light is at distance 2.14 from p and mirrors the view about +z at p.
     p = pairs.points[:, hl]
     assert (p[..., :2].abs() <= 1).all() and (p[..., 2] == 0).all()
@@ -130,6 +139,7 @@ def test_sampler_seeding_and_errors():
 
 # --------------------------------------------------------------------------------- rendering loss
 
+
 def test_rendering_loss_hand_value_and_gradient():
     cams = torch.tensor([[[0.0, 0.0, 2.0], [0.0, 0.0, 1.0]]])
     pairs = sample_view_light_pairs(1, torch.Generator().manual_seed(0), count=2, highlights=0)
@@ -162,6 +172,7 @@ def test_rendering_loss_with_torch_renderer():
 
 
 # ----------------------------------------------------------------------------------- MAIR losses
+
 
 def test_masked_angular_l1():
     z = torch.tensor([0.0, 0.0, 1.0]).view(1, 3, 1, 1).expand(1, 3, 1, 2)

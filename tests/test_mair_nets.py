@@ -76,10 +76,13 @@ def _targets(b, h, w, seed=1):
     n = torch.randn(b, 3, h, w, generator=g) * 0.3
     n[:, 2] = 1.0
     n = n / torch.linalg.vector_norm(n, dim=1, keepdim=True)
-    return {"normal": n, "diffuse": torch.rand(b, 3, h, w, generator=g),
-            "specular": 0.04 + 0.2 * torch.rand(b, 3, h, w, generator=g),
-            "roughness": torch.rand(b, 1, h, w, generator=g),
-            "light": 0.1 + torch.rand(b, 3 * 8, h, w, generator=g)}
+    return {
+        "normal": n,
+        "diffuse": torch.rand(b, 3, h, w, generator=g),
+        "specular": 0.04 + 0.2 * torch.rand(b, 3, h, w, generator=g),
+        "roughness": torch.rand(b, 1, h, w, generator=g),
+        "light": 0.1 + torch.rand(b, 3 * 8, h, w, generator=g),
+    }
 
 
 LIGHT_DIRS = hemisphere_directions(2, 4)  # 8 directions: a small g4 target
@@ -88,14 +91,19 @@ LIGHT_DIRS = hemisphere_directions(2, 4)  # 8 directions: a small g4 target
 def _mair_loss(out, t) -> torch.Tensor:
     """g1 + g2 (normals), g3 (albedo), g2 (roughness, specular), g4 (lighting), g5 (visibility)."""
     m = out.maps
-    return (masked_angular_l1(m.normal, t["normal"]) + masked_mse(m.normal, t["normal"])
-            + scale_invariant_mse(m.diffuse, t["diffuse"]) + masked_mse(m.roughness, t["roughness"])
-            + masked_mse(m.specular, t["specular"])
-            + scale_invariant_log_mse(out.lighting.radiance_image(LIGHT_DIRS), t["light"])
-            + 0.1 * entropy_regulariser(out.lighting.visibility_distribution(), dim=1))
+    return (
+        masked_angular_l1(m.normal, t["normal"])
+        + masked_mse(m.normal, t["normal"])
+        + scale_invariant_mse(m.diffuse, t["diffuse"])
+        + masked_mse(m.roughness, t["roughness"])
+        + masked_mse(m.specular, t["specular"])
+        + scale_invariant_log_mse(out.lighting.radiance_image(LIGHT_DIRS), t["light"])
+        + 0.1 * entropy_regulariser(out.lighting.visibility_distribution(), dim=1)
+    )
 
 
 # ---------------------------------------------------------------------------------- geometry
+
 
 def test_view_directions_follow_the_cameras():
     h, w = 12, 10
@@ -131,6 +139,7 @@ def test_in_frame_weights():
 
 
 # ------------------------------------------------------------------------ shapes and ranges
+
 
 @pytest.mark.parametrize("hw", [(16, 16), (20, 28), (32, 32)])
 def test_stage_shapes_and_ranges(hw):
@@ -170,7 +179,7 @@ def test_visibility_stays_in_unit_interval_at_extremes():
     last = model.lighting_net.net.ending
     s = model.config.num_sgs
     with torch.no_grad():  # drive the visibility logits to ±1e4
-        last.bias[4 * s:5 * s] = torch.tensor([1e4, -1e4, 0.0])
+        last.bias[4 * s : 5 * s] = torch.tensor([1e4, -1e4, 0.0])
     views = _views(1, 9, 16, 16) * 1e4
     light = model(views, view_direction_maps(16, 16)).lighting
     assert torch.isfinite(light.visibility).all()
@@ -200,6 +209,7 @@ def test_bad_inputs_are_input_errors():
 
 
 # ------------------------------------------------------------------------------------ fusion
+
 
 def _permutation_check(fusion):
     torch.manual_seed(3)
@@ -279,12 +289,17 @@ def test_zero_weight_view_is_ignored(fusion):
 
 # ------------------------------------------------------------------------ lighting evaluation
 
+
 def test_pixel_sg_radiance_matches_the_sg_formula():
     g = _gen(14)
     b, s, h, w = 2, 3, 3, 4
     axis = torch.nn.functional.normalize(torch.randn(b, s, 3, h, w, generator=g), dim=2)
-    light = PixelSGLighting(axis, 1 + 50 * torch.rand(b, s, 1, h, w, generator=g),
-                            torch.rand(b, s, 1, h, w, generator=g), torch.rand(b, s, 3, generator=g))
+    light = PixelSGLighting(
+        axis,
+        1 + 50 * torch.rand(b, s, 1, h, w, generator=g),
+        torch.rand(b, s, 1, h, w, generator=g),
+        torch.rand(b, s, 3, generator=g),
+    )
     dirs = hemisphere_directions(3, 5)
     assert dirs.shape == (15, 3) and (dirs[:, 2] > 0).all()
     assert torch.allclose(torch.linalg.vector_norm(dirs, dim=1), torch.ones(15), atol=1e-6)
@@ -295,15 +310,18 @@ def test_pixel_sg_radiance_matches_the_sg_formula():
     assert np.allclose(rad[bb, :, :, i, j].numpy(), ref, rtol=1e-4, atol=1e-6)
     # one lobe by hand
     k = 7
-    by_hand = sum(light.visibility[bb, q, 0, i, j] * light.intensity[bb, q]
-                  * torch.exp(light.sharpness[bb, q, 0, i, j]
-                              * ((light.axis[bb, q, :, i, j] * dirs[k]).sum() - 1))
-                  for q in range(s))
+    by_hand = sum(
+        light.visibility[bb, q, 0, i, j]
+        * light.intensity[bb, q]
+        * torch.exp(light.sharpness[bb, q, 0, i, j] * ((light.axis[bb, q, :, i, j] * dirs[k]).sum() - 1))
+        for q in range(s)
+    )
     assert torch.allclose(rad[bb, k, :, i, j], by_hand, rtol=1e-5)
-    assert torch.equal(light.radiance_image(dirs)[:, 3 * k:3 * k + 3], rad[:, k])
+    assert torch.equal(light.radiance_image(dirs)[:, 3 * k : 3 * k + 3], rad[:, k])
 
 
 # -------------------------------------------------------------------------- gradients, training
+
 
 @pytest.mark.parametrize("fusion", ["attention", "mean"])
 def test_gradients_reach_every_parameter(fusion):
@@ -311,8 +329,11 @@ def test_gradients_reach_every_parameter(fusion):
     h = w = 16
     out = model(_views(2, 9, h, w, seed=16), view_direction_maps(h, w))
     _mair_loss(out, _targets(2, h, w)).backward()
-    missing = [name for name, p in model.named_parameters()
-               if p.grad is None or not torch.isfinite(p.grad).all() or p.grad.abs().sum() == 0]
+    missing = [
+        name
+        for name, p in model.named_parameters()
+        if p.grad is None or not torch.isfinite(p.grad).all() or p.grad.abs().sum() == 0
+    ]
     assert not missing, f"no gradient reached {missing}"
 
 
@@ -340,6 +361,7 @@ def test_one_step_lowers_the_mair_loss():
 
 # ------------------------------------------------------------------------------------ config
 
+
 def test_presets_and_parameter_counts():
     assert set(MAIR_SIZE_PRESETS) == {"tiny", "small", "paper"}
     # quoted in docs/mair.md and the mair_config docstring (`python -m ebr_mitsuba.nets.mair_params`)
@@ -352,8 +374,16 @@ def test_config_from_dict():
     cfg = MAIRConfig.from_dict({"size": "tiny", "fusion": "mean", "sharpness_range": [2, 100]})
     assert cfg.size == MAIR_SIZE_PRESETS["tiny"] and cfg.fusion == "mean"
     assert cfg.sharpness_range == (2.0, 100.0)
-    custom = MAIRConfig.from_dict({"size": {"mva_dim": 12, "mva_heads": 3, "normal": "small",
-                                            "refine": {"widths": [8, 16], "depth": 1, "groups": 4}}})
+    custom = MAIRConfig.from_dict(
+        {
+            "size": {
+                "mva_dim": 12,
+                "mva_heads": 3,
+                "normal": "small",
+                "refine": {"widths": [8, 16], "depth": 1, "groups": 4},
+            }
+        }
+    )
     assert custom.size.mva_dim == 12 and custom.size.refine.widths == (8, 16)
     with pytest.raises(ConfigError, match="unknown key"):
         MAIRConfig.from_dict({"views": 9})

@@ -65,8 +65,11 @@ def _wake_residuals(module, value=0.1):
 
 
 def _assert_all_grads(module):
-    missing = [name for name, p in module.named_parameters()
-               if p.grad is None or not torch.isfinite(p.grad).all() or p.grad.abs().sum() == 0]
+    missing = [
+        name
+        for name, p in module.named_parameters()
+        if p.grad is None or not torch.isfinite(p.grad).all() or p.grad.abs().sum() == 0
+    ]
     assert not missing, f"no gradient reached {missing}"
 
 
@@ -88,6 +91,7 @@ def _random_maps(b, h, w, seed):
 
 
 # ---------------------------------------------------------------------------------------------- NAFNet
+
 
 @pytest.mark.parametrize("hw", [(16, 16), (13, 21), (1, 5)])
 def test_nafnet_shapes_pad_and_crop(hw):
@@ -144,8 +148,9 @@ def test_size_presets_and_parameter_counts():
 
 def test_size_config_validation():
     assert NAFNetSize.from_value("small") is SMALL_SIZE
-    assert NAFNetSize.from_value({"width": 4, "enc_blk_nums": [1], "middle_blk_num": 0,
-                                  "dec_blk_nums": [2]}).enc_blk_nums == (1,)
+    assert NAFNetSize.from_value(
+        {"width": 4, "enc_blk_nums": [1], "middle_blk_num": 0, "dec_blk_nums": [2]}
+    ).enc_blk_nums == (1,)
     with pytest.raises(ConfigError, match="unknown key"):
         NAFNetSize.from_value({"width": 4, "depth": 3})
     with pytest.raises(ConfigError, match="same length"):
@@ -162,6 +167,7 @@ def test_size_config_validation():
 
 # ---------------------------------------------------------------------------------------- lighting net
 
+
 @pytest.mark.parametrize("capture,shots", [("near", 2), ("near-far", 4)])
 def test_lighting_net_shapes_and_non_negative(capture, shots):
     torch.manual_seed(0)
@@ -176,6 +182,7 @@ def test_lighting_net_shapes_and_non_negative(capture, shots):
 
 
 # --------------------------------------------------------------------------------------------- cascade
+
 
 def _cascade_inputs(b=2, h=10, w=14, k=3, m=3, seed=0):
     return dict(
@@ -212,15 +219,22 @@ def test_cascade_gradients_reach_every_parameter():
     torch.manual_seed(0)
     cascade = Cascade(CascadeConfig(size=TINY))
     _wake_residuals(cascade)
-    out = cascade(**_cascade_inputs(), render_diffuse_flash=tb.near_flash_diffuse(),
-                  render_photos=_render_photos)
+    out = cascade(
+        **_cascade_inputs(), render_diffuse_flash=tb.near_flash_diffuse(), render_photos=_render_photos
+    )
     parameter_l1(out.maps, _random_maps(2, 10, 14, seed=9))[0].backward()
     _assert_all_grads(cascade)
 
 
-@pytest.mark.parametrize("flags", [dict(use_exemplars=False), dict(use_cascade=False),
-                                   dict(use_refinement=False),
-                                   dict(use_exemplars=False, use_cascade=False, use_refinement=False)])
+@pytest.mark.parametrize(
+    "flags",
+    [
+        dict(use_exemplars=False),
+        dict(use_cascade=False),
+        dict(use_refinement=False),
+        dict(use_exemplars=False, use_cascade=False, use_refinement=False),
+    ],
+)
 def test_cascade_ablations(flags):
     torch.manual_seed(0)
     cfg = CascadeConfig(size=TINY, **flags)
@@ -249,6 +263,7 @@ def test_cascade_input_errors():
 
 # -------------------------------------------------------------------------------------- dual-loss net
 
+
 @pytest.mark.parametrize("output", ["diffuse_specular", "basecolor_metallic"])
 def test_dual_loss_net_shapes_and_ranges(output):
     torch.manual_seed(0)
@@ -266,20 +281,25 @@ def test_dual_loss_net_shapes_and_ranges(output):
 
 def test_basecolor_metallic_conversion():
     base = torch.tensor([0.2, 0.5, 0.9]).view(1, 3, 1, 1)
-    for m, d_exp, s_exp in ((0.0, base, torch.full_like(base, 0.04)), (1.0, torch.zeros_like(base), base),
-                            (0.5, 0.5 * base, 0.02 + 0.5 * base)):
+    for m, d_exp, s_exp in (
+        (0.0, base, torch.full_like(base, 0.04)),
+        (1.0, torch.zeros_like(base), base),
+        (0.5, 0.5 * base, 0.02 + 0.5 * base),
+    ):
         d, s = basecolor_metallic_to_diffuse_specular(base, torch.full((1, 1, 1, 1), m))
         assert torch.allclose(d, d_exp) and torch.allclose(s, s_exp)
 
 
 def test_dual_loss_dropout_only_in_coarse_layers():
     net = DualLossNet(DualLossConfig(levels=6, width_scale=1 / 16))
-    with_dropout = [i for i, layer in enumerate(net.up)
-                    if any(isinstance(m, torch.nn.Dropout) for m in layer)]
+    with_dropout = [
+        i for i, layer in enumerate(net.up) if any(isinstance(m, torch.nn.Dropout) for m in layer)
+    ]
     assert with_dropout == [0, 1, 2, 3]  # the four coarsest of five decoder layers
 
 
 # ------------------------------------------------------------------------------ two training steps each
+
 
 def _two_steps_lower(params, loss_fn, lr=1e-3):
     opt = torch.optim.Adam(params, lr=lr)
@@ -305,14 +325,21 @@ def test_two_adam_steps_lower_the_loss_for_every_net():
 
     lighting = LightingNet(LightingNetConfig(size=TINY, num_exemplars=2))
     shots, gt = _rand(2, 6, 10, 14, seed=3), _rand(2, 3, 10, 14, seed=4)
-    _two_steps_lower(lighting.parameters(),
-                     lambda: (lighting(shots).log_flash_only - torch.log(gt + 0.01)).abs().mean())
+    _two_steps_lower(
+        lighting.parameters(), lambda: (lighting(shots).log_flash_only - torch.log(gt + 0.01)).abs().mean()
+    )
 
     cascade = Cascade(CascadeConfig(size=TINY))
     inputs = _cascade_inputs()
-    _two_steps_lower(cascade.parameters(), lambda: parameter_l1(
-        cascade(**inputs, render_diffuse_flash=tb.near_flash_diffuse(), render_photos=_render_photos).maps,
-        target)[0])
+    _two_steps_lower(
+        cascade.parameters(),
+        lambda: parameter_l1(
+            cascade(
+                **inputs, render_diffuse_flash=tb.near_flash_diffuse(), render_photos=_render_photos
+            ).maps,
+            target,
+        )[0],
+    )
 
     dual = DualLossNet(TINY_DUAL)
     images = _rand(2, 5, 3, 10, 14, seed=6)
@@ -325,6 +352,7 @@ def test_two_adam_steps_lower_the_loss_for_every_net():
 
 
 # ------------------------------------------------------------------------------------ maps container
+
 
 def test_maps_stack_and_svbrdf_round_trip():
     maps = _random_maps(2, 5, 6, seed=3)
@@ -340,6 +368,7 @@ def test_maps_stack_and_svbrdf_round_trip():
 
 
 # ------------------------------------------------------------------------------ torch BRDF vs Dr.Jit
+
 
 def _random_directions(rng, n, below=0.0):
     """Unit vectors, upper hemisphere except a fraction ``below`` mirrored under the horizon."""
@@ -373,8 +402,19 @@ def test_torch_brdf_matches_drjit(variant, rng, fresnel):
     def vec(a, cls):
         return cls(a[:, 0], a[:, 1], a[:, 2])
 
-    ref = brdf.brdf_eval_cos(vec(n, mi.Vector3f), vec(l, mi.Vector3f), vec(v, mi.Vector3f),
-                             vec(d, mi.Color3f), vec(s, mi.Color3f), mi.Float(r), fresnel).numpy().T
+    ref = (
+        brdf.brdf_eval_cos(
+            vec(n, mi.Vector3f),
+            vec(l, mi.Vector3f),
+            vec(v, mi.Vector3f),
+            vec(d, mi.Color3f),
+            vec(s, mi.Color3f),
+            mi.Float(r),
+            fresnel,
+        )
+        .numpy()
+        .T
+    )
     t = torch.from_numpy
     ours = tb.brdf_eval_cos(t(n), t(l), t(v), t(d), t(s), t(r), fresnel).numpy()
     assert np.isfinite(ours).all()
@@ -421,11 +461,13 @@ def test_point_light_renderers_against_hand_formula():
     p = pixel_positions(h, w)[2, 5]
     to_l = np.asarray(light) - p
     lv = torch.tensor(to_l / np.linalg.norm(to_l), dtype=torch.float32)
-    vv = torch.tensor((np.array([0, 0, NEAR_DISTANCE]) - p) / np.linalg.norm([0, 0, NEAR_DISTANCE] - p),
-                      dtype=torch.float32)
+    vv = torch.tensor(
+        (np.array([0, 0, NEAR_DISTANCE]) - p) / np.linalg.norm([0, 0, NEAR_DISTANCE] - p), dtype=torch.float32
+    )
     nv = tb.perturbed_normal(maps.normal[0, :, 2, 5])
-    f = tb.brdf_eval_cos(nv, lv, vv, maps.diffuse[0, :, 2, 5], maps.specular[0, :, 2, 5],
-                         maps.roughness[0, 0, 2, 5])
+    f = tb.brdf_eval_cos(
+        nv, lv, vv, maps.diffuse[0, :, 2, 5], maps.specular[0, :, 2, 5], maps.roughness[0, 0, 2, 5]
+    )
     assert torch.allclose(img[0, :, 2, 5], f * 5.0 / float(to_l @ to_l), rtol=1e-5)
 
     # Near flash, diffuse only: d/π · I · max(n·l, 0)/dist² at a flat pixel.

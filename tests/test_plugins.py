@@ -70,19 +70,23 @@ def _plane_scene(env_dict, bsdf, integrator="path", res=16, max_depth=None):
     integ = {"type": integrator}
     if max_depth is not None:
         integ["max_depth"] = max_depth
-    return mi.load_dict({
-        "type": "scene",
-        "integrator": integ,
-        "env": env_dict,
-        "plane": {"type": "rectangle", "bsdf": bsdf},
-        "sensor": {
-            "type": "perspective",
-            "fov": 45.0,
-            "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 2.414], target=[0, 0, 0], up=[0, 1, 0]),
-            "film": {"type": "hdrfilm", "width": res, "height": res, "rfilter": {"type": "box"}},
-            "sampler": {"type": "independent"},
-        },
-    })
+    return mi.load_dict(
+        {
+            "type": "scene",
+            "integrator": integ,
+            "env": env_dict,
+            "plane": {"type": "rectangle", "bsdf": bsdf},
+            "sensor": {
+                "type": "perspective",
+                "fov": 45.0,
+                "to_world": mi.ScalarTransform4f().look_at(
+                    origin=[0, 0, 2.414], target=[0, 0, 0], up=[0, 1, 0]
+                ),
+                "film": {"type": "hdrfilm", "width": res, "height": res, "rfilter": {"type": "box"}},
+                "sampler": {"type": "independent"},
+            },
+        }
+    )
 
 
 def _render(scene, spp, seed=0):
@@ -156,8 +160,9 @@ def test_sgenvmap_gradients_flow_through_traversed_parameters(rng):
         grad_amp = (e.sum(axis=0)[:, None] * w[None, :]).reshape(-1)
         grad_lam = ((cos - 1.0) * e * (env.amplitude @ w)[None, :]).sum(axis=0)
         np.testing.assert_allclose(dr.grad(params["amplitude"]).numpy(), grad_amp, rtol=1e-4)
-        np.testing.assert_allclose(dr.grad(params["sharpness"]).numpy(), grad_lam, rtol=1e-3,
-                                   atol=1e-4 * np.abs(grad_lam).max())
+        np.testing.assert_allclose(
+            dr.grad(params["sharpness"]).numpy(), grad_lam, rtol=1e-3, atol=1e-4 * np.abs(grad_lam).max()
+        )
 
 
 def test_sgenvmap_parameter_update_changes_lobes(rng):
@@ -181,7 +186,7 @@ def test_sgenvmap_loads_env_json_and_inline_xml(tmp_path, rng):
     env.save(tmp_path / "env.json")
     d = _unit(rng, 500)
     from_file = mi.load_string(f"""<emitter version="3.0.0" type="sgenvmap">
-        <string name="filename" value="{tmp_path / 'env.json'}"/>
+        <string name="filename" value="{tmp_path / "env.json"}"/>
         <float name="scale" value="2"/>
     </emitter>""")
     np.testing.assert_allclose(_emitter_eval(from_file, d), 2.0 * env.eval(d), rtol=2e-5, atol=1e-6)
@@ -191,23 +196,35 @@ def test_sgenvmap_loads_env_json_and_inline_xml(tmp_path, rng):
 
     inline = mi.load_string(f"""<emitter version="3.0.0" type="sgenvmap">
         <string name="axis" value="{rows(env.axis)}"/>
-        <string name="sharpness" value="{', '.join(repr(float(v)) for v in env.sharpness)}"/>
+        <string name="sharpness" value="{", ".join(repr(float(v)) for v in env.sharpness)}"/>
         <string name="amplitude" value="{rows(env.amplitude)}"/>
     </emitter>""")
     np.testing.assert_allclose(_emitter_eval(inline, d), env.eval(d), rtol=2e-5, atol=1e-6)
 
 
-@pytest.mark.parametrize("body, message", [
-    ('<string name="axis" value="0 0 1"/>', "missing sharpness, amplitude"),
-    ('<string name="axis" value="0 0 1, 1 0"/><string name="sharpness" value="1 2"/>'
-     '<string name="amplitude" value="1 1 1, 1 1 1"/>', "lobe 1 has 2 numbers"),
-    ('<string name="axis" value="0 0 1"/><string name="sharpness" value="-1"/>'
-     '<string name="amplitude" value="1 1 1"/>', "sharpness must be > 0"),
-    ('<string name="filename" value="/nonexistent/env.json"/>', "no such SG environment file"),
-    ('<string name="filename" value="x.json"/><string name="axis" value="0 0 1"/>', "not both"),
-    ('<string name="axis" value=""/><string name="sharpness" value=""/>'
-     '<string name="amplitude" value=""/><float name="scale" value="-1"/>', "'scale' is -1"),
-])
+@pytest.mark.parametrize(
+    "body, message",
+    [
+        ('<string name="axis" value="0 0 1"/>', "missing sharpness, amplitude"),
+        (
+            '<string name="axis" value="0 0 1, 1 0"/><string name="sharpness" value="1 2"/>'
+            '<string name="amplitude" value="1 1 1, 1 1 1"/>',
+            "lobe 1 has 2 numbers",
+        ),
+        (
+            '<string name="axis" value="0 0 1"/><string name="sharpness" value="-1"/>'
+            '<string name="amplitude" value="1 1 1"/>',
+            "sharpness must be > 0",
+        ),
+        ('<string name="filename" value="/nonexistent/env.json"/>', "no such SG environment file"),
+        ('<string name="filename" value="x.json"/><string name="axis" value="0 0 1"/>', "not both"),
+        (
+            '<string name="axis" value=""/><string name="sharpness" value=""/>'
+            '<string name="amplitude" value=""/><float name="scale" value="-1"/>',
+            "'scale' is -1",
+        ),
+    ],
+)
 def test_sgenvmap_rejects_bad_input(body, message):
     with pytest.raises(RuntimeError, match=message):
         mi.load_string(f'<emitter version="3.0.0" type="sgenvmap">{body}</emitter>')
@@ -226,14 +243,22 @@ def _emitter_chi2(env, res, ires):
         ds.d = d
         return em.pdf_direction(dr.zeros(mi.Interaction3f), ds)
 
-    return ChiSquareTest(SphericalDomain(), sample, pdf, sample_dim=2, sample_count=1_000_000,
-                         res=res, ires=ires, seed=0)
+    return ChiSquareTest(
+        SphericalDomain(), sample, pdf, sample_dim=2, sample_count=1_000_000, res=res, ires=ires, seed=0
+    )
 
 
 _EMITTER_CASES = {
     "sharp_1e3": (SGEnvironment([[0.6, 0.0, 0.8]], [1.0e3], [[1.0, 1.0, 1.0]]), 401, 8),
-    "mix_3": (SGEnvironment([[0.6, 0.0, 0.8], [0.0, 0.3, -1.0], [-1.0, 1.0, 0.2]], [1.0e3, 5.0, 0.01],
-                            [[3.0, 2.0, 1.0], [0.1, 0.2, 0.3], [0.05, 0.05, 0.05]]), 401, 8),
+    "mix_3": (
+        SGEnvironment(
+            [[0.6, 0.0, 0.8], [0.0, 0.3, -1.0], [-1.0, 1.0, 0.2]],
+            [1.0e3, 5.0, 0.01],
+            [[3.0, 2.0, 1.0], [0.1, 0.2, 0.3], [0.05, 0.05, 0.05]],
+        ),
+        401,
+        8,
+    ),
     "mix_12": (None, 101, 4),  # symbolic-loop path, random lobes λ ∈ [1, 200]
 }
 
@@ -248,22 +273,28 @@ def test_sgenvmap_chi2(case):
 
 
 # -- svbrdf: χ² ----------------------------------------------------------------------------------
-_BSDF_CASES = [
-    (r, theta, None) for r in (0.05, 0.5, 1.0) for theta in (10.0, 50.0, 80.0)
-] + [(0.3, 40.0, [0.3, -0.2, 0.9]), (0.05, 60.0, [-0.4, 0.1, 0.8])]
+_BSDF_CASES = [(r, theta, None) for r in (0.05, 0.5, 1.0) for theta in (10.0, 50.0, 80.0)] + [
+    (0.3, 40.0, [0.3, -0.2, 0.9]),
+    (0.05, 60.0, [-0.4, 0.1, 0.8]),
+]
 
 
 @pytest.mark.parametrize("roughness, theta, normal", _BSDF_CASES)
 def test_svbrdf_chi2(roughness, theta, normal):
-    props = {"type": "svbrdf", "diffuse": {"type": "rgb", "value": [0.5, 0.4, 0.3]},
-             "specular": 0.04, "roughness": roughness}
+    props = {
+        "type": "svbrdf",
+        "diffuse": {"type": "rgb", "value": [0.5, 0.4, 0.3]},
+        "specular": 0.04,
+        "roughness": roughness,
+    }
     if normal is not None:
         props["normal"] = {"type": "rgb", "value": normal}
     t = math.radians(theta)
     sample, pdf = BSDFAdapter("svbrdf", props, wi=[math.sin(t), 0.0, math.cos(t)])
     res, ires = (801, 16) if roughness < 0.1 else (101, 4)
-    test = ChiSquareTest(SphericalDomain(), sample, pdf, sample_dim=3, sample_count=1_000_000,
-                         res=res, ires=ires, seed=0)
+    test = ChiSquareTest(
+        SphericalDomain(), sample, pdf, sample_dim=3, sample_count=1_000_000, res=res, ires=ires, seed=0
+    )
     assert test.run(SIGNIFICANCE, test_count=len(_BSDF_CASES), quiet=True), test.messages
 
 
@@ -273,8 +304,9 @@ def _local_si(n, wi_np, uv=(0.5, 0.5)):
     si.wi = _vec(wi_np)
     si.uv = mi.Point2f(*uv)
     si.n = mi.Normal3f(0.0, 0.0, 1.0)
-    si.sh_frame = mi.Frame3f(mi.Vector3f(1.0, 0.0, 0.0), mi.Vector3f(0.0, 1.0, 0.0),
-                             mi.Vector3f(0.0, 0.0, 1.0))
+    si.sh_frame = mi.Frame3f(
+        mi.Vector3f(1.0, 0.0, 0.0), mi.Vector3f(0.0, 1.0, 0.0), mi.Vector3f(0.0, 0.0, 1.0)
+    )
     si.dp_du = mi.Vector3f(1.0, 0.0, 0.0)
     si.dp_dv = mi.Vector3f(0.0, 1.0, 0.0)
     return si
@@ -284,35 +316,58 @@ def _builtin_reference(normal, diffuse, specular, roughness):
     """Mitsuba's normalmap(blendbsdf(0.5, diffuse(2d), roughconductor(GGX, F=2s)))
     (docs/conventions.md, "Dr.Jit and Mitsuba on the CPU")."""
     encoded = (np.asarray(normal, np.float32) + 1.0) / 2.0
-    return mi.load_dict({
-        "type": "normalmap",
-        "flip_invalid_normals": False,
-        "use_shadowing_function": False,
-        "normalmap": {"type": "bitmap", "raw": True,
-                      "data": mi.TensorXf(np.broadcast_to(encoded, (2, 2, 3)).copy())},
-        "bsdf": {
-            "type": "blendbsdf",
-            "weight": 0.5,
-            "bsdf_0": {"type": "diffuse",
-                       "reflectance": {"type": "rgb", "value": list(2.0 * np.asarray(diffuse))}},
-            "bsdf_1": {"type": "roughconductor", "distribution": "ggx", "alpha": roughness ** 2,
-                       "material": "none",
-                       "specular_reflectance": {"type": "rgb", "value": list(2.0 * np.asarray(specular))}},
-        },
-    })
+    return mi.load_dict(
+        {
+            "type": "normalmap",
+            "flip_invalid_normals": False,
+            "use_shadowing_function": False,
+            "normalmap": {
+                "type": "bitmap",
+                "raw": True,
+                "data": mi.TensorXf(np.broadcast_to(encoded, (2, 2, 3)).copy()),
+            },
+            "bsdf": {
+                "type": "blendbsdf",
+                "weight": 0.5,
+                "bsdf_0": {
+                    "type": "diffuse",
+                    "reflectance": {"type": "rgb", "value": list(2.0 * np.asarray(diffuse))},
+                },
+                "bsdf_1": {
+                    "type": "roughconductor",
+                    "distribution": "ggx",
+                    "alpha": roughness**2,
+                    "material": "none",
+                    "specular_reflectance": {"type": "rgb", "value": list(2.0 * np.asarray(specular))},
+                },
+            },
+        }
+    )
 
 
-@pytest.mark.parametrize("normal, roughness", [
-    ([0.0, 0.0, 1.0], 0.5), ([0.0, 0.0, 1.0], 0.05), ([0.3, -0.2, 0.9], 0.3), ([-0.5, 0.4, 0.75], 0.9),
-])
+@pytest.mark.parametrize(
+    "normal, roughness",
+    [
+        ([0.0, 0.0, 1.0], 0.5),
+        ([0.0, 0.0, 1.0], 0.05),
+        ([0.3, -0.2, 0.9], 0.3),
+        ([-0.5, 0.4, 0.75], 0.9),
+    ],
+)
 def test_svbrdf_matches_mitsuba_builtins(rng, normal, roughness):
     diffuse, specular = [0.45, 0.3, 0.1], [0.04, 0.3, 0.5]  # the built-ins need 2d, 2s <= 1
     n_unit = np.asarray(normal) / np.linalg.norm(normal)
     normal_map = np.broadcast_to(n_unit.astype(np.float32), (2, 2, 3)).copy()
-    ours = mi.load_dict({"type": "svbrdf", "fresnel": "none", "roughness": roughness,
-                         "diffuse": {"type": "rgb", "value": diffuse},
-                         "specular": {"type": "rgb", "value": specular},
-                         "normal": {"type": "bitmap", "raw": True, "data": mi.TensorXf(normal_map)}})
+    ours = mi.load_dict(
+        {
+            "type": "svbrdf",
+            "fresnel": "none",
+            "roughness": roughness,
+            "diffuse": {"type": "rgb", "value": diffuse},
+            "specular": {"type": "rgb", "value": specular},
+            "normal": {"type": "bitmap", "raw": True, "data": mi.TensorXf(normal_map)},
+        }
+    )
     ref = _builtin_reference(n_unit, diffuse, specular, roughness)
     count = 20000
     wi = _unit(rng, count)
@@ -337,9 +392,16 @@ def test_svbrdf_matches_mitsuba_builtins(rng, normal, roughness):
 
 @pytest.mark.parametrize("fresnel", ["schlick", "none"])
 def test_svbrdf_sample_weight_and_records(rng, fresnel):
-    bsdf = mi.load_dict({"type": "svbrdf", "fresnel": fresnel, "roughness": 0.4,
-                         "diffuse": {"type": "rgb", "value": [0.5, 0.2, 0.1]}, "specular": 0.3,
-                         "normal": {"type": "rgb", "value": [0.2, 0.1, 0.95]}})
+    bsdf = mi.load_dict(
+        {
+            "type": "svbrdf",
+            "fresnel": fresnel,
+            "roughness": 0.4,
+            "diffuse": {"type": "rgb", "value": [0.5, 0.2, 0.1]},
+            "specular": 0.3,
+            "normal": {"type": "rgb", "value": [0.2, 0.1, 0.95]},
+        }
+    )
     count = 20000
     wi = _unit(rng, count)
     wi[:, 2] = np.abs(wi[:, 2]) + 0.05
@@ -367,8 +429,14 @@ def test_svbrdf_sample_weight_and_records(rng, fresnel):
 def test_svbrdf_texture_gradients(rng):
     """Maps are differentiable through ``mi.traverse``: ∂f/∂d is cos/π (f is linear in d) and
     ∂f/∂r matches a central finite difference."""
-    bsdf = mi.load_dict({"type": "svbrdf", "roughness": 0.4, "specular": 0.3,
-                         "diffuse": {"type": "rgb", "value": [0.2, 0.3, 0.4]}})
+    bsdf = mi.load_dict(
+        {
+            "type": "svbrdf",
+            "roughness": 0.4,
+            "specular": 0.3,
+            "diffuse": {"type": "rgb", "value": [0.2, 0.3, 0.4]},
+        }
+    )
     params = mi.traverse(bsdf)
     count = 2000
     wi, wo = _unit(rng, count), _unit(rng, count)
@@ -386,8 +454,9 @@ def test_svbrdf_texture_gradients(rng):
     dr.enable_grad(params["roughness.value"])
     params.update()
     dr.backward(total())
-    np.testing.assert_allclose(dr.grad(params["diffuse.value"]).numpy()[:, 0],
-                               np.sum(wo[:, 2]) / np.pi, rtol=1e-4)
+    np.testing.assert_allclose(
+        dr.grad(params["diffuse.value"]).numpy()[:, 0], np.sum(wo[:, 2]) / np.pi, rtol=1e-4
+    )
     grad_r = float(dr.grad(params["roughness.value"]).numpy()[0])
     h = 1e-2
     with dr.suspend_grad():
@@ -399,18 +468,23 @@ def test_svbrdf_encoded_normals_and_flags(rng):
     n = np.array([0.3, -0.2, 0.9]) / np.linalg.norm([0.3, -0.2, 0.9])
     plain = mi.load_dict({"type": "svbrdf", "normal": {"type": "rgb", "value": list(n)}})
     encoded = mi.load_string(f"""<bsdf version="3.0.0" type="svbrdf">
-        <rgb name="normal" value="{' '.join(str((v + 1) / 2) for v in n)}"/>
+        <rgb name="normal" value="{" ".join(str((v + 1) / 2) for v in n)}"/>
         <boolean name="normal_encoded" value="true"/>
     </bsdf>""")
     wi, wo = _unit(rng, 1000), _unit(rng, 1000)
     wi[:, 2] = np.abs(wi[:, 2])
     ctx = mi.BSDFContext()
     si = _local_si(1000, wi)
-    np.testing.assert_allclose(_np(encoded.eval(ctx, si, _vec(wo))), _np(plain.eval(ctx, si, _vec(wo))),
-                               rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(
+        _np(encoded.eval(ctx, si, _vec(wo))), _np(plain.eval(ctx, si, _vec(wo))), rtol=1e-5, atol=1e-7
+    )
     flags = plain.flags()
-    for flag in (mi.BSDFFlags.GlossyReflection, mi.BSDFFlags.DiffuseReflection, mi.BSDFFlags.FrontSide,
-                 mi.BSDFFlags.SpatiallyVarying):
+    for flag in (
+        mi.BSDFFlags.GlossyReflection,
+        mi.BSDFFlags.DiffuseReflection,
+        mi.BSDFFlags.FrontSide,
+        mi.BSDFFlags.SpatiallyVarying,
+    ):
         assert mi.has_flag(flags, flag)
     assert plain.component_count() == 2
     with pytest.raises(RuntimeError, match="'fresnel' is 'fancy'"):
@@ -442,13 +516,23 @@ def _rasterise_for_envmap(env, width=256, height=128):
 
 
 def test_sgenvmap_render_matches_rasterised_envmap():
-    env = SGEnvironment([[0.3, 0.2, 0.9], [-0.7, 0.1, 0.5], [0.0, 0.0, 1.0]], [8.0, 3.0, 0.5],
-                        [[2.0, 1.5, 1.0], [0.3, 0.6, 0.9], [0.2, 0.2, 0.2]])
-    bsdf = {"type": "svbrdf", "diffuse": {"type": "rgb", "value": [0.5, 0.4, 0.3]}, "specular": 0.2,
-            "roughness": 0.6}
+    env = SGEnvironment(
+        [[0.3, 0.2, 0.9], [-0.7, 0.1, 0.5], [0.0, 0.0, 1.0]],
+        [8.0, 3.0, 0.5],
+        [[2.0, 1.5, 1.0], [0.3, 0.6, 0.9], [0.2, 0.2, 0.2]],
+    )
+    bsdf = {
+        "type": "svbrdf",
+        "diffuse": {"type": "rgb", "value": [0.5, 0.4, 0.3]},
+        "specular": 0.2,
+        "roughness": 0.6,
+    }
     ours = _render(_plane_scene(_sgenvmap_dict(env), bsdf, "path", res=8), spp=256)
-    envmap = {"type": "envmap", "bitmap": mi.Bitmap(_rasterise_for_envmap(env)),
-              "to_world": mi.ScalarTransform4f().rotate([1, 0, 0], 90)}
+    envmap = {
+        "type": "envmap",
+        "bitmap": mi.Bitmap(_rasterise_for_envmap(env)),
+        "to_world": mi.ScalarTransform4f().rotate([1, 0, 0], 90),
+    }
     ref = _render(_plane_scene(envmap, bsdf, "path", res=8), spp=256)
     # image means (8×8 px × 256 spp each); bilinear rasterisation error ≪ 1% for λ ≤ 8
     np.testing.assert_allclose(ours.mean(axis=(0, 1)), ref.mean(axis=(0, 1)), rtol=0.01)
@@ -471,8 +555,12 @@ def test_hard_environments_stay_finite(rng, case):
     it = dr.zeros(mi.Interaction3f, n)
     ds, weight = em.sample_direction(it, mi.Point2f(rng.random((2, n)).astype(np.float32)))
     d = _unit(rng, n)
-    values = [_np(weight), ds.pdf.numpy(), _emitter_eval(em, d),
-              em.pdf_direction(it, _direction_sample(d)).numpy()]
+    values = [
+        _np(weight),
+        ds.pdf.numpy(),
+        _emitter_eval(em, d),
+        em.pdf_direction(it, _direction_sample(d)).numpy(),
+    ]
     assert all(np.all(np.isfinite(v)) for v in values)
     assert all(np.all(v >= 0) for v in values)
     ref = env.eval(d)
@@ -582,9 +670,11 @@ print(mi.variant(), type(scene).__name__)
 """
 
 
-@pytest.mark.parametrize("script, expected", [(_IMPORT_AFTER_VARIANT, "SGEnvMap SVBRDFBSDF"),
-                                              (_IMPORT_BEFORE_VARIANT, "Scene")],
-                         ids=["set_variant_then_import", "import_then_load_scene"])
+@pytest.mark.parametrize(
+    "script, expected",
+    [(_IMPORT_AFTER_VARIANT, "SGEnvMap SVBRDFBSDF"), (_IMPORT_BEFORE_VARIANT, "Scene")],
+    ids=["set_variant_then_import", "import_then_load_scene"],
+)
 def test_plugins_register_whatever_the_import_order(tmp_path, variant, script, expected):
     """``mi.set_variant(...); import ebr_mitsuba`` registers both plugins for ``mi.load_file``;
     ``import ebr_mitsuba`` first imports no Mitsuba, and ``ebr_mitsuba.load_scene`` sets the
@@ -595,11 +685,17 @@ def test_plugins_register_whatever_the_import_order(tmp_path, variant, script, e
     if script is _IMPORT_AFTER_VARIANT:
         xml = '<bsdf version="3.0.0" type="svbrdf"><float name="roughness" value="0.3"/></bsdf>'
     else:
-        xml = ('<scene version="3.0.0"><emitter type="sgenvmap"><string name="axis" value="0 0 1"/>'
-               '<string name="sharpness" value="2"/><string name="amplitude" value="1 1 1"/></emitter>'
-               '<shape type="rectangle"><bsdf type="svbrdf"/></shape></scene>')
+        xml = (
+            '<scene version="3.0.0"><emitter type="sgenvmap"><string name="axis" value="0 0 1"/>'
+            '<string name="sharpness" value="2"/><string name="amplitude" value="1 1 1"/></emitter>'
+            '<shape type="rectangle"><bsdf type="svbrdf"/></shape></scene>'
+        )
     (tmp_path / "x.xml").write_text(xml)
-    proc = subprocess.run([sys.executable, "-c", script, variant, str(tmp_path / "x.xml")],
-                          capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-c", script, variant, str(tmp_path / "x.xml")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
-    assert proc.stdout.split()[-len(expected.split()):] == expected.split(), proc.stdout
+    assert proc.stdout.split()[-len(expected.split()) :] == expected.split(), proc.stdout

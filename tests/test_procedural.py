@@ -39,6 +39,7 @@ DIELECTRIC = ("tiles", "wood", "leather", "plaster", "fabric", "marble")
 
 # -- materials -----------------------------------------------------------------------------------
 
+
 @pytest.mark.parametrize("size", [64, 256])
 @pytest.mark.parametrize("family", list(FAMILIES))
 def test_family_maps_valid(family, size):
@@ -94,23 +95,36 @@ def test_physical_statistics():
 
 def test_families_differ():
     """Per-family statistics (mean over seeds 0–2 at 64²) differ pairwise by ≥ 0.05 somewhere."""
+
     def features(m: SVBRDF) -> np.ndarray:
         lum = m.diffuse @ LUMINANCE
         chroma = (m.diffuse.max(-1) - m.diffuse.min(-1)).mean()
-        return np.array([lum.mean(), lum.std(), chroma, m.specular.mean(), m.roughness.mean(),
-                         m.roughness.std(), m.normal[..., :2].std()])
+        return np.array(
+            [
+                lum.mean(),
+                lum.std(),
+                chroma,
+                m.specular.mean(),
+                m.roughness.mean(),
+                m.roughness.std(),
+                m.normal[..., :2].std(),
+            ]
+        )
 
     feats = {f: np.mean([features(make_material(f, s, 64)) for s in range(3)], axis=0) for f in FAMILIES}
     names = list(feats)
     for i, a in enumerate(names):
-        for b in names[i + 1:]:
+        for b in names[i + 1 :]:
             assert np.abs(feats[a] - feats[b]).max() >= 0.05, (a, b)
 
 
 def test_parameter_override_keeps_other_draws():
     default = make_material("wood", 7, 64)
-    matches = [s for s in ("light", "oak", "walnut", "cherry")
-               if np.array_equal(make_material("wood", 7, 64, species=s).diffuse, default.diffuse)]
+    matches = [
+        s
+        for s in ("light", "oak", "walnut", "cherry")
+        if np.array_equal(make_material("wood", 7, 64, species=s).diffuse, default.diffuse)
+    ]
     assert len(matches) == 1
     picked = make_material("tiles", 3, 64)
     rows4 = make_material("tiles", 3, 64, style="tiles", rows=4)
@@ -139,11 +153,16 @@ def test_bad_inputs():
 
 # -- noise ----------------------------------------------------------------------------------------
 
+
 def test_noise_is_periodic_and_bounded():
     u, v = grid(32, 48)
     assert u.shape == (32, 48) and v[0, 0] < v[-1, 0]  # v grows downwards
-    gens = [lambda a, b, r: gradient_noise(a, b, (3, 5), r), lambda a, b, r: value_noise(a, b, 4, r),
-            lambda a, b, r: fbm(a, b, r, freq=(2, 7), octaves=4), lambda a, b, r: worley(a, b, 5, r).f1]
+    gens = [
+        lambda a, b, r: gradient_noise(a, b, (3, 5), r),
+        lambda a, b, r: value_noise(a, b, 4, r),
+        lambda a, b, r: fbm(a, b, r, freq=(2, 7), octaves=4),
+        lambda a, b, r: worley(a, b, 5, r).f1,
+    ]
     for gen in gens:
         a = gen(u, v, np.random.default_rng(1))
         b = gen(u + 1.0, v - 2.0, np.random.default_rng(1))
@@ -154,6 +173,7 @@ def test_noise_is_periodic_and_bounded():
 
 
 # -- normals --------------------------------------------------------------------------------------
+
 
 def test_normal_from_height_ramp_orientation():
     size = 16
@@ -179,11 +199,16 @@ def test_slope_round_trip():
 
 # -- augmentation ---------------------------------------------------------------------------------
 
+
 def _ramp_material(size: int, a: float, b: float = 0.0) -> SVBRDF:
     u, v = grid(size)
     height = a * (2 * u - 1) + b * (1 - 2 * v)
-    return SVBRDF(normal=normals_from_height(height), diffuse=np.stack([u, v, 0.5 + 0 * u], -1),
-                  specular=np.full((size, size, 3), 0.04), roughness=u.copy())
+    return SVBRDF(
+        normal=normals_from_height(height),
+        diffuse=np.stack([u, v, 0.5 + 0 * u], -1),
+        specular=np.full((size, size, 3), 0.04),
+        roughness=u.copy(),
+    )
 
 
 @pytest.mark.parametrize("k", [1, 2, 3])
@@ -278,13 +303,15 @@ def test_blend_slope_space():
 
 # -- environments -------------------------------------------------------------------------------
 
+
 def _reference_irradiance(env) -> float:
     """Luminance of ∫ L(ω) max(ω_z, 0) dω by brute quadrature in each lobe's own polar frame."""
     total = 0.0
     x, w = np.polynomial.legendre.leggauss(400)
     phi = (np.arange(1024) + 0.5) * (2 * np.pi / 1024)
-    for axis, lam, amp in zip(env.axis.astype(np.float64), env.sharpness.astype(np.float64),
-                              env.amplitude.astype(np.float64)):
+    for axis, lam, amp in zip(
+        env.axis.astype(np.float64), env.sharpness.astype(np.float64), env.amplitude.astype(np.float64)
+    ):
         smax = min(2.0, 50.0 / lam)  # 1 − cos θ; e^{−50} is negligible
         s = (x + 1) * smax / 2
         ws = w * smax / 2
@@ -292,7 +319,7 @@ def _reference_irradiance(env) -> float:
         t1 /= np.linalg.norm(t1)
         t2 = np.cross(axis, t1)
         cos_t = 1 - s
-        sin_t = np.sqrt(np.clip(1 - cos_t ** 2, 0, None))
+        sin_t = np.sqrt(np.clip(1 - cos_t**2, 0, None))
         wz = cos_t[:, None] * axis[2] + sin_t[:, None] * (np.cos(phi) * t1[2] + np.sin(phi) * t2[2])
         inner = np.clip(wz, 0, None).sum(axis=1) * (2 * np.pi / 1024)
         total += float(np.sum(ws * np.exp(-lam * s) * inner)) * float(amp @ LUMINANCE)

@@ -17,8 +17,10 @@ from ebr_mitsuba.errors import ConfigError, InputError
 from ebr_mitsuba.materials import load_texture_set
 
 SHARED = sp.data_dir()
-needs_shared = pytest.mark.skipif(not (SHARED / "materials_extra" / "index.json").is_file(),
-                                  reason="shared assets not found; set EBR_DATA_DIR")
+needs_shared = pytest.mark.skipif(
+    not (SHARED / "materials_extra" / "index.json").is_file(),
+    reason="shared assets not found; set EBR_DATA_DIR",
+)
 
 
 def test_bundled_split_is_well_formed_and_disjoint():
@@ -109,8 +111,15 @@ def test_config_globs_filter_by_split_and_refuse_named_test_assets():
     named = sp.real_materials("test")[:1]
     with pytest.raises(ConfigError, match="fixed test split"):
         parse_config(_config(pattern + named, "train"))
-    envs = parse_config(_config([f"{SHARED}/envmaps_extra/*.hdr", f"{SHARED}/envmaps_extra/*.exr"], "test",
-                                "environments")).environments[0].paths
+    envs = (
+        parse_config(
+            _config(
+                [f"{SHARED}/envmaps_extra/*.hdr", f"{SHARED}/envmaps_extra/*.exr"], "test", "environments"
+            )
+        )
+        .environments[0]
+        .paths
+    )
     assert sorted(envs) == sorted(p for p in sp.real_envmaps("test") if "envmaps_extra" in p)
 
 
@@ -146,8 +155,12 @@ def test_center_square_crop_of_a_non_square_set():
     h, w = 6, 10
     diffuse = np.zeros((h, w, 3), np.float32)
     diffuse[:, 2:8] = 0.5
-    m = SVBRDF(np.dstack([np.zeros((h, w, 2)), np.ones((h, w))]), diffuse, np.full((h, w, 3), 0.04),
-               np.full((h, w), 0.3))
+    m = SVBRDF(
+        np.dstack([np.zeros((h, w, 2)), np.ones((h, w))]),
+        diffuse,
+        np.full((h, w, 3), 0.04),
+        np.full((h, w), 0.3),
+    )
     sq = center_square(m)
     assert sq.shape == (6, 6) and np.all(sq.diffuse == 0.5)
     assert center_square(sq) is sq

@@ -52,9 +52,19 @@ def test_sg_integral_and_cosine_match_closed_forms(lam):
         assert got == pytest.approx(math.cos(ang) * _closed_cosine(lam), rel=1e-10, abs=1e-14)
 
 
-@pytest.mark.parametrize("l1, l2, ang", [(100.0, 100.0, 1e-3), (1e4, 1e4, 1e-3), (1e4, 1e4, 0.3),
-                                         (1e-4, 1e-4, 1.0), (1e-4, 1e4, 2.0), (3.0, 5.0, 2.0),
-                                         (0.5, 0.5, math.pi), (1e6, 10.0, 0.01)])
+@pytest.mark.parametrize(
+    "l1, l2, ang",
+    [
+        (100.0, 100.0, 1e-3),
+        (1e4, 1e4, 1e-3),
+        (1e4, 1e4, 0.3),
+        (1e-4, 1e-4, 1.0),
+        (1e-4, 1e4, 2.0),
+        (3.0, 5.0, 2.0),
+        (0.5, 0.5, math.pi),
+        (1e6, 10.0, 0.01),
+    ],
+)
 def test_sg_inner_product_matches_closed_form(l1, l2, ang):
     """Quadrature with the integrand evaluated directly against the cancellation-free closed form:
     1e-9 relative, including λ = 1e4 lobes 0.3 rad apart (a value of 1e-101)."""
@@ -71,7 +81,8 @@ def test_sg_irradiance_limits_and_refinement():
     above = _dir(0.3)
     for lam in (100.0, 1e4):
         assert float(reference.sg_irradiance(above, lam, 1.0, Z)) == pytest.approx(
-            float(reference.sg_cosine_signed(above, lam, 1.0, Z)), rel=1e-10)
+            float(reference.sg_cosine_signed(above, lam, 1.0, Z)), rel=1e-10
+        )
     assert float(reference.sg_irradiance(_dir(1.0), 1e-8, 2.0, Z)) == pytest.approx(2.0 * math.pi, rel=1e-7)
     assert float(reference.sg_irradiance(_dir(2.5), 1e3, 1.0, Z)) <= 1e-30 * _closed_integral(1e3)
     for lam in (1e-3, 1.0, 30.0, 1e4):
@@ -110,8 +121,9 @@ def test_brdf_reference_properties():
     s = rng.uniform(0, 1, (50, 3))
     f = reference.brdf_eval(n, l, v, 0.3, s, r)
     np.testing.assert_allclose(f, reference.brdf_eval(n, v, l, 0.3, s, r), rtol=1e-13)
-    np.testing.assert_array_equal(reference.brdf_eval(n, l, v, 0.3, s, 0.0),
-                                  reference.brdf_eval(n, l, v, 0.3, s, 0.03))
+    np.testing.assert_array_equal(
+        reference.brdf_eval(n, l, v, 0.3, s, 0.0), reference.brdf_eval(n, l, v, 0.3, s, 0.03)
+    )
     below = l * np.array([1.0, 1.0, -1.0])
     assert np.all(reference.brdf_eval(Z, below, v, 0.3, s, r) == 0.0)
     assert np.all(reference.brdf_eval(n, l, -n, 0.3, s, r) == 0.0)
@@ -128,21 +140,36 @@ def test_render_env_diffuse_equals_irradiance():
     """Diffuse-only shading with a flat normal is d/π · Σ irradiance of the lobes: 1e-5 (measured
     4e-6 with these three lobes together, ≤ 2e-7 for each alone: where lobe and GGX grids meet,
     the grid that takes over resolves the other's tail only approximately)."""
-    env = SGEnvironment(np.array([_dir(0.5, 0.3), _dir(1.6, 2.0), _dir(1.2, -1.0)]),
-                        np.array([1e-3, 1e4, 30.0]), np.array([[1, 1, 1], [5, 4, 3], [0.2, 0.5, 1]]))
+    env = SGEnvironment(
+        np.array([_dir(0.5, 0.3), _dir(1.6, 2.0), _dir(1.2, -1.0)]),
+        np.array([1e-3, 1e4, 30.0]),
+        np.array([[1, 1, 1], [5, 4, 3], [0.2, 0.5, 1]]),
+    )
     got = reference.render_env(env, Z, _dir(0.7), [0.5, 0.25, 1.0], 0.0, 0.4, fresnel="none")
-    irr = sum(reference.sg_irradiance(env.axis[k].astype(float), float(env.sharpness[k]),
-                                      env.amplitude[k].astype(float), Z) for k in range(3))
+    irr = sum(
+        reference.sg_irradiance(
+            env.axis[k].astype(float), float(env.sharpness[k]), env.amplitude[k].astype(float), Z
+        )
+        for k in range(3)
+    )
     np.testing.assert_allclose(got[0], np.array([0.5, 0.25, 1.0]) / math.pi * irr, rtol=1e-5)
     assert np.all(reference.render_env(SGEnvironment.empty(), Z, Z, 0.5, 0.5, 0.5) == 0.0)
 
 
 RENDER_CASES = {  # normal, view, roughness, lobes (axis, λ, amplitude)
     "sharp lobe on a sharp mirror peak": (Z, _dir(0.5, math.pi + 0.3), 0.0, [(_dir(0.5, 0.3), 1e4, 1.0)]),
-    "normal tilted 60°, rough": (_dir(math.radians(60), 2.0), _dir(0.9, 0.5), 1.0,
-                                 [(_dir(0.5, 0.3), 1e-3, 1.0), (_dir(1.2, -1.0), 30.0, 0.5)]),
-    "view 89°, lobe at the horizon": (Z, _dir(math.radians(89), math.pi), 0.1,
-                                      [(_dir(1.5), 300.0, 1.0), (_dir(0.3, 1.0), 2.0, 0.1)]),
+    "normal tilted 60°, rough": (
+        _dir(math.radians(60), 2.0),
+        _dir(0.9, 0.5),
+        1.0,
+        [(_dir(0.5, 0.3), 1e-3, 1.0), (_dir(1.2, -1.0), 30.0, 0.5)],
+    ),
+    "view 89°, lobe at the horizon": (
+        Z,
+        _dir(math.radians(89), math.pi),
+        0.1,
+        [(_dir(1.5), 300.0, 1.0), (_dir(0.3, 1.0), 2.0, 0.1)],
+    ),
     "lobe below the horizon": (Z, _dir(0.7), 0.5, [(_dir(1.6, 2.0), 1e4, 1.0)]),
 }
 
@@ -152,8 +179,11 @@ def test_render_env_converges(case):
     """render_env at the default n = 16 against n = 24: ≤ 2e-5 relative (see the module docstring
     for the n = 48 study)."""
     normal, view, rough, lobes = RENDER_CASES[case]
-    env = SGEnvironment(np.array([x[0] for x in lobes]), np.array([x[1] for x in lobes]),
-                        np.array([[x[2]] * 3 for x in lobes]))
+    env = SGEnvironment(
+        np.array([x[0] for x in lobes]),
+        np.array([x[1] for x in lobes]),
+        np.array([[x[2]] * 3 for x in lobes]),
+    )
     a = reference.render_env(env, normal, view, 0.5, 0.5, rough)
     b = reference.render_env(env, normal, view, 0.5, 0.5, rough, n=24)
     assert b[0, 1] > 0

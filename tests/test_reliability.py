@@ -56,14 +56,22 @@ def train_doc(data: Path, **stages) -> dict:
     doc = tomllib.loads((CONFIGS / "train_tiny.toml").read_text())
     doc["data"] = {"train": str(data)}
     doc["train"].update(batch_size=2, log_every=1, checkpoint_every=1, threads=1)
-    doc["stages"] = {"lighting": 2, "diffuse": 0, "specular": 0, "refinement": 0, "finetune": 0,
-                     "finetune_samples": 2, **stages}
+    doc["stages"] = {
+        "lighting": 2,
+        "diffuse": 0,
+        "specular": 0,
+        "refinement": 0,
+        "finetune": 0,
+        "finetune_samples": 2,
+        **stages,
+    }
     doc["extract"] = {"iters": 3, "max_lobes": 4}
     return doc
 
 
 def write_toml(doc: dict, path: Path) -> Path:
     """A TOML file of ``doc`` (scalars, lists and one level of inline tables)."""
+
     def value(v):
         if isinstance(v, dict):
             return "{ " + ", ".join(f"{k} = {value(x)}" for k, x in v.items()) + " }"
@@ -137,20 +145,36 @@ def _flip(path: Path, nbytes: int = 0, bit: bool = False) -> None:
 
 DAMAGE = {
     # name: (damage(root), text the error line must contain)
-    "16 bytes flipped in an EXR": (lambda r: _flip(r / "samples/000001/maps/diffuse.exr", 16),
-                                   "samples/000001/maps/diffuse.exr: checksum differs"),
-    "1 bit flipped in an EXR": (lambda r: _flip(r / "samples/000002/exemplars/env_0.exr", bit=True),
-                                "samples/000002/exemplars/env_0.exr: checksum differs"),
-    "truncated EXR": (lambda r: (p := r / "samples/000001/flash_only/flash.exr").write_bytes(
-        p.read_bytes()[:200]), "samples/000001/flash_only/flash.exr: size differs"),
-    "deleted manifest.json": (lambda r: (r / "samples/000003/manifest.json").unlink(),
-                              "samples/000003/manifest.json: missing"),
-    "deleted sample.json": (lambda r: (r / "samples/000000/sample.json").unlink(),
-                            "samples/000000/sample.json: missing"),
-    "edited manifest.json": (lambda r: (p := r / "samples/000001/manifest.json").write_text(
-        p.read_text().replace('"bytes": ', '"bytes": 1')), "samples/000001/manifest.json: its SHA-256"),
-    "garbage index.json": (lambda r: (r / "index.json").write_bytes(b"\x00{garbage"),
-                           "index.json: unreadable"),
+    "16 bytes flipped in an EXR": (
+        lambda r: _flip(r / "samples/000001/maps/diffuse.exr", 16),
+        "samples/000001/maps/diffuse.exr: checksum differs",
+    ),
+    "1 bit flipped in an EXR": (
+        lambda r: _flip(r / "samples/000002/exemplars/env_0.exr", bit=True),
+        "samples/000002/exemplars/env_0.exr: checksum differs",
+    ),
+    "truncated EXR": (
+        lambda r: (p := r / "samples/000001/flash_only/flash.exr").write_bytes(p.read_bytes()[:200]),
+        "samples/000001/flash_only/flash.exr: size differs",
+    ),
+    "deleted manifest.json": (
+        lambda r: (r / "samples/000003/manifest.json").unlink(),
+        "samples/000003/manifest.json: missing",
+    ),
+    "deleted sample.json": (
+        lambda r: (r / "samples/000000/sample.json").unlink(),
+        "samples/000000/sample.json: missing",
+    ),
+    "edited manifest.json": (
+        lambda r: (p := r / "samples/000001/manifest.json").write_text(
+            p.read_text().replace('"bytes": ', '"bytes": 1')
+        ),
+        "samples/000001/manifest.json: its SHA-256",
+    ),
+    "garbage index.json": (
+        lambda r: (r / "index.json").write_bytes(b"\x00{garbage"),
+        "index.json: unreadable",
+    ),
     "deleted dataset.json": (lambda r: (r / "dataset.json").unlink(), "dataset.json: missing"),
 }
 
@@ -397,8 +421,10 @@ def test_output_lock_is_exclusive_and_dies_with_its_holder(tmp_path):
         with pytest.raises(BusyError, match=r"out: in use by ebr test \(pid \d+\)"):
             OutputLock(out, "other").acquire()
     assert not lock_path(out).exists()
-    code = (f"from ebr_mitsuba.fsutil import OutputLock; lock = OutputLock({str(out)!r}, 'ebr x').acquire()\n"
-            f"print('held', flush=True); import time; time.sleep(60)")
+    code = (
+        f"from ebr_mitsuba.fsutil import OutputLock; lock = OutputLock({str(out)!r}, 'ebr x').acquire()\n"
+        f"print('held', flush=True); import time; time.sleep(60)"
+    )
     proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
     try:
         assert proc.stdout.readline().strip() == "held"
@@ -423,8 +449,15 @@ def test_second_writer_is_refused_with_one_line(tiny, tmp_path, capsys, command)
         argv = ["generate", str(CONFIGS / "data_tiny.toml"), "--out", str(out), "--resume"]
     elif command == "estimate":
         sample = tiny / "samples/000000/photos"
-        argv = ["estimate", "--flash", str(sample / "flash.png"), "--noflash", str(sample / "noflash.png"),
-                "--out", str(out)]
+        argv = [
+            "estimate",
+            "--flash",
+            str(sample / "flash.png"),
+            "--noflash",
+            str(sample / "noflash.png"),
+            "--out",
+            str(out),
+        ]
     else:
         argv = ["train", str(write_toml(train_doc(tiny), tmp_path / "t.toml")), "--out", str(out)]
     before = sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*"))
@@ -432,8 +465,11 @@ def test_second_writer_is_refused_with_one_line(tiny, tmp_path, capsys, command)
         capsys.readouterr()
         assert main(argv) == 2
         lines = error_lines(capsys.readouterr().err)
-        assert len(lines) == 1 and lines[0].startswith(f"ebr {command}: error: ") and "in use by ebr first" \
-            in lines[0], lines
+        assert (
+            len(lines) == 1
+            and lines[0].startswith(f"ebr {command}: error: ")
+            and "in use by ebr first" in lines[0]
+        ), lines
         after = sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*"))
         assert after == sorted(before + [lock_path(out).relative_to(tmp_path).as_posix()])  # the holder's
 

@@ -29,8 +29,24 @@ def estimate_dir(tmp_path_factory):
     sys.modules["ebr_mitsuba.train.inference"] = fake_inference()
     try:
         out = tmp / "my_estimate"
-        assert main(["estimate", "--flash", str(tmp / "flash.exr"), "--noflash", str(tmp / "noflash.exr"),
-                     "--out", str(out), "--checkpoint", str(tmp / "flash.exr"), "--refine-steps", "20"]) == 0
+        assert (
+            main(
+                [
+                    "estimate",
+                    "--flash",
+                    str(tmp / "flash.exr"),
+                    "--noflash",
+                    str(tmp / "noflash.exr"),
+                    "--out",
+                    str(out),
+                    "--checkpoint",
+                    str(tmp / "flash.exr"),
+                    "--refine-steps",
+                    "20",
+                ]
+            )
+            == 0
+        )
     finally:
         if saved is None:
             sys.modules.pop("ebr_mitsuba.train.inference", None)
@@ -47,8 +63,10 @@ def test_title_names_the_output_directory(estimate_dir):
 
 
 def _labels(svg: str) -> list[tuple[float, float, str]]:
-    return [(float(x), float(y), t) for x, y, t in
-            re.findall(r'<text x="([-\d.]+)" y="([-\d.]+)"[^>]*>([^<]*)</text>', svg)]
+    return [
+        (float(x), float(y), t)
+        for x, y, t in re.findall(r'<text x="([-\d.]+)" y="([-\d.]+)"[^>]*>([^<]*)</text>', svg)
+    ]
 
 
 def _points(svg: str) -> list[tuple[float, float]]:
@@ -56,11 +74,14 @@ def _points(svg: str) -> list[tuple[float, float]]:
     return [tuple(map(float, p.split(","))) for p in pts]
 
 
-@pytest.mark.parametrize("history", [
-    [[0, 0.05], [2, 0.4], [4, 0.02], [6, 0.01]],     # a peak after the first step
-    [[0, 1.0], [5, 0.5], [10, 0.2], [15, 0.1]],      # monotone decrease
-    [[0, 0.01], [3, 0.02], [6, 0.5]],                # increase: the last value is the peak
-])
+@pytest.mark.parametrize(
+    "history",
+    [
+        [[0, 0.05], [2, 0.4], [4, 0.02], [6, 0.01]],  # a peak after the first step
+        [[0, 1.0], [5, 0.5], [10, 0.2], [15, 0.1]],  # monotone decrease
+        [[0, 0.01], [3, 0.02], [6, 0.5]],  # increase: the last value is the peak
+    ],
+)
 def test_loss_labels_sit_beside_their_points(history):
     svg = _loss_svg(history)
     pts = _points(svg)
@@ -121,7 +142,8 @@ def test_exemplar_thumbnails_not_washed_out_nor_fringed(tmp_path, rng):
     border = shown[1][0, 5:-5].mean(axis=0)
     assert border[0] > border[1] > border[2] and border[2] < 0.95, border
     assert exemplar_exposure(stack) == pytest.approx(
-        EXEMPLAR_KEY / np.mean([(a @ LUMINANCE.astype(np.float32)).mean() for a in stack]), rel=1e-5)
+        EXEMPLAR_KEY / np.mean([(a @ LUMINANCE.astype(np.float32)).mean() for a in stack]), rel=1e-5
+    )
     assert exemplar_exposure([np.zeros((4, 4, 3), np.float32)]) == 1.0
 
 

@@ -37,8 +37,11 @@ TOL = 0.1
 
 def _zenith_env() -> SGEnvironment:
     """A bright window lobe 17° from the zenith (reflected into the near camera) over a blue sky."""
-    return SGEnvironment(np.array([[np.sin(0.3), 0.1, np.cos(0.3)], [0.0, 0.0, 1.0]]), np.array([150.0, 1.5]),
-                         np.array([[8.0, 7.5, 7.0], [0.3, 0.35, 0.45]]))
+    return SGEnvironment(
+        np.array([[np.sin(0.3), 0.1, np.cos(0.3)], [0.0, 0.0, 1.0]]),
+        np.array([150.0, 1.5]),
+        np.array([[8.0, 7.5, 7.0], [0.3, 0.35, 0.45]]),
+    )
 
 
 def _default_env() -> SGEnvironment:
@@ -49,15 +52,24 @@ def _default_env() -> SGEnvironment:
 
 
 ENVS = {"zenith": _zenith_env, "default": _default_env, "window": lambda: make_environment(1)}
-MATERIALS = {"exemplar-like": (0.1, 0.2), "brown plastic": ((0.5, 0.35, 0.2), 0.04),
-             "gold-ish": ((0.05, 0.05, 0.08), (0.9, 0.7, 0.4))}
+MATERIALS = {
+    "exemplar-like": (0.1, 0.2),
+    "brown plastic": ((0.5, 0.35, 0.2), 0.04),
+    "gold-ish": ((0.05, 0.05, 0.08), (0.9, 0.7, 0.4)),
+}
 
 
 def _noflash(env, diffuse, specular, r):
     from ebr_mitsuba.render import render_numpy
 
-    return render_numpy(SVBRDF.uniform(RES, RES, diffuse, specular, r), env, near_shot(False),
-                        mode="quadrature", spp=256, seed=9)
+    return render_numpy(
+        SVBRDF.uniform(RES, RES, diffuse, specular, r),
+        env,
+        near_shot(False),
+        mode="quadrature",
+        spp=256,
+        seed=9,
+    )
 
 
 def _flash_only(diffuse, specular, r):
@@ -66,19 +78,35 @@ def _flash_only(diffuse, specular, r):
     return render_numpy(SVBRDF.uniform(RES, RES, diffuse, specular, r), None, near_shot(True, env=False))
 
 
-@pytest.mark.parametrize("env_name,material,r", [
-    ("zenith", "exemplar-like", 0.15), ("zenith", "brown plastic", 0.65), ("zenith", "gold-ish", 1.0),
-    ("default", "gold-ish", 0.15), ("default", "brown plastic", 0.4), ("default", "exemplar-like", 0.85),
-    ("window", "brown plastic", 0.05), ("window", "gold-ish", 0.65),
-])
+@pytest.mark.parametrize(
+    "env_name,material,r",
+    [
+        ("zenith", "exemplar-like", 0.15),
+        ("zenith", "brown plastic", 0.65),
+        ("zenith", "gold-ish", 1.0),
+        ("default", "gold-ish", 0.15),
+        ("default", "brown plastic", 0.4),
+        ("default", "exemplar-like", 0.85),
+        ("window", "brown plastic", 0.05),
+        ("window", "gold-ish", 0.65),
+    ],
+)
 def test_env_selection_recovers_roughness(env_name, material, r):
     env = ENVS[env_name]()
     sel = select_exemplars(env, _noflash(env, *MATERIALS[material], r))
     assert abs(sel.roughness[0] - r) <= TOL + 1e-9, (sel.roughness, sel.scores)
 
 
-@pytest.mark.parametrize("material,r", [("exemplar-like", 0.05), ("brown plastic", 0.3), ("gold-ish", 0.6),
-                                        ("brown plastic", 0.85), ("exemplar-like", 1.0)])
+@pytest.mark.parametrize(
+    "material,r",
+    [
+        ("exemplar-like", 0.05),
+        ("brown plastic", 0.3),
+        ("gold-ish", 0.6),
+        ("brown plastic", 0.85),
+        ("exemplar-like", 1.0),
+    ],
+)
 def test_point_selection_recovers_roughness(material, r):
     sel = select_exemplars(None, _flash_only(*MATERIALS[material], r), point_light=True)
     assert abs(sel.roughness[0] - r) <= TOL + 1e-9, (sel.roughness, sel.scores)
@@ -138,14 +166,17 @@ def test_global_ssim_properties(rng):
     assert global_ssim(a, a * 0.5, 1.0) < global_ssim(a, a * 0.9, 1.0) < 1.0
 
 
-@pytest.mark.parametrize("target,match", [
-    (np.zeros((16, 16, 3), np.float32), "black"),
-    (np.ones((16, 16, 3), np.float32), "uniform"),
-    (np.ones((16, 16, 4), np.float32), r"\(H, W, 3\)"),
-    (np.ones((2, 16, 3), np.float32), "at least"),
-    (np.full((16, 16, 3), np.nan, np.float32), "NaN"),
-    ([[0.0]], "numpy"),
-])
+@pytest.mark.parametrize(
+    "target,match",
+    [
+        (np.zeros((16, 16, 3), np.float32), "black"),
+        (np.ones((16, 16, 3), np.float32), "uniform"),
+        (np.ones((16, 16, 4), np.float32), r"\(H, W, 3\)"),
+        (np.ones((2, 16, 3), np.float32), "at least"),
+        (np.full((16, 16, 3), np.nan, np.float32), "NaN"),
+        ([[0.0]], "numpy"),
+    ],
+)
 def test_bad_targets(target, match):
     with pytest.raises(InputError, match=match):
         select_exemplars(None, target, point_light=True)
@@ -159,9 +190,19 @@ def test_env_needed_and_flash_needed(rng):
         select_exemplars(None, img, point_light=True, shot=near_shot(False))
 
 
-@pytest.mark.parametrize("kwargs", [{"coarse": ()}, {"coarse": (1.5,)}, {"anchors": (0.9, 0.1)},
-                                    {"anchors": (0.1,)}, {"fine_step": 0.0}, {"env_mode": "path"},
-                                    {"env_spp": 0}, {"compare_size": 2}])
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"coarse": ()},
+        {"coarse": (1.5,)},
+        {"anchors": (0.9, 0.1)},
+        {"anchors": (0.1,)},
+        {"fine_step": 0.0},
+        {"env_mode": "path"},
+        {"env_spp": 0},
+        {"compare_size": 2},
+    ],
+)
 def test_bad_config(kwargs):
     with pytest.raises(ConfigError):
         SelectConfig(**kwargs)
@@ -176,6 +217,7 @@ def test_fine_grid_stays_in_range():
 
 # -- command line -------------------------------------------------------------------------------
 
+
 def test_cli_json_and_out(tmp_path, capsys):
     env = _zenith_env()
     env_path = tmp_path / "env.json"
@@ -183,8 +225,9 @@ def test_cli_json_and_out(tmp_path, capsys):
     img = tmp_path / "noflash.exr"
     write_exr(img, _noflash(env, 0.3, 0.05, 0.65))
     out = tmp_path / "sel"
-    code = cli.main(["select-exemplars", "--env", str(env_path), "--image", str(img), "--json",
-                     "--out", str(out)])
+    code = cli.main(
+        ["select-exemplars", "--env", str(env_path), "--image", str(img), "--json", "--out", str(out)]
+    )
     assert code == 0
     data = json.loads(capsys.readouterr().out)
     assert len(data["roughness"]) == 3 and data["roughness"][1:] == [0.1, 0.9]

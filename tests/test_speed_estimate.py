@@ -30,8 +30,13 @@ def _colour():
 
 
 def test_linear_to_srgb_equals_colour_science_bit_for_bit(rng):
-    x = np.concatenate([rng.random(20000), rng.random(2000) * 0.01,
-                        [-0.5, 0.0, 1.0, io.SRGB_LINEAR_KNEE, 2.0, np.nan, np.inf]])
+    x = np.concatenate(
+        [
+            rng.random(20000),
+            rng.random(2000) * 0.01,
+            [-0.5, 0.0, 1.0, io.SRGB_LINEAR_KNEE, 2.0, np.nan, np.inf],
+        ]
+    )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         want = np.asarray(_colour().models.eotf_inverse_sRGB(x), np.float32)
@@ -88,8 +93,9 @@ def test_fast_writes_png_same_codes(tmp_path, rng):
     io.write_png(tmp_path / "a.png", img)
     with io.fast_writes():
         io.write_png(tmp_path / "b.png", img)
-    np.testing.assert_array_equal(io.read_ldr(tmp_path / "a.png", "linear"),
-                                  io.read_ldr(tmp_path / "b.png", "linear"))
+    np.testing.assert_array_equal(
+        io.read_ldr(tmp_path / "a.png", "linear"), io.read_ldr(tmp_path / "b.png", "linear")
+    )
     with pytest.raises(ValueError, match="level"):
         io.write_png(tmp_path / "c.png", img, level=0)
 
@@ -114,8 +120,8 @@ def test_unit_normal_equals_the_vector_norm_form():
     got = unit_normal(raw)
     torch.testing.assert_close(got, want, rtol=1e-12, atol=1e-12)
     w = torch.randn_like(want)
-    g_want, = torch.autograd.grad((want * w).sum(), raw)
-    g_got, = torch.autograd.grad((got * w).sum(), raw)
+    (g_want,) = torch.autograd.grad((want * w).sum(), raw)
+    (g_got,) = torch.autograd.grad((got * w).sum(), raw)
     torch.testing.assert_close(g_got, g_want, rtol=1e-10, atol=1e-12)
 
 
@@ -131,8 +137,8 @@ def test_torch_brdf_normalize_equals_the_vector_norm_form(layout):
     got = _normalize(v)
     torch.testing.assert_close(got, want, rtol=1e-12, atol=1e-12)
     w = torch.randn_like(want)
-    g_want, = torch.autograd.grad((want * w).sum(), v)
-    g_got, = torch.autograd.grad((got * w).sum(), v)
+    (g_want,) = torch.autograd.grad((want * w).sum(), v)
+    (g_got,) = torch.autograd.grad((got * w).sum(), v)
     torch.testing.assert_close(g_got, g_want, rtol=1e-10, atol=1e-12)
 
 
@@ -156,9 +162,14 @@ def test_ensemble_equals_the_numpy_mean_of_upsampled_maps(rng):
     for m in members:
         want.add(upsample_maps(m, 32))
     got.add_svbrdf(members[0])
-    torch_maps = Maps(*(torch.from_numpy(np.ascontiguousarray(
-        (a if a.ndim == 3 else a[..., None]).transpose(2, 0, 1)))[None]
-        for a in (members[1].normal, members[1].diffuse, members[1].specular, members[1].roughness)))
+    torch_maps = Maps(
+        *(
+            torch.from_numpy(np.ascontiguousarray((a if a.ndim == 3 else a[..., None]).transpose(2, 0, 1)))[
+                None
+            ]
+            for a in (members[1].normal, members[1].diffuse, members[1].specular, members[1].roughness)
+        )
+    )
     got.add_maps(torch_maps)
     got.add_svbrdf(members[2])
     w, g = want.mean("a"), got.mean("b")
@@ -194,10 +205,17 @@ def test_log_input_in_place_form_is_bit_identical():
     torch.testing.assert_close(xg.grad, (x > 0).float() / (x.clamp_min(0.0) + 0.01), rtol=1e-6, atol=0)
 
 
-@pytest.mark.parametrize("shape,size", [
-    ((64, 48, 3), (32, 24)), ((64, 48), (32, 48)), ((64, 48, 1), (64, 24)),
-    ((30, 40, 3), (15, 10)), ((64, 64, 3), (16, 16)), ((33, 20, 3), (11, 10)),
-])
+@pytest.mark.parametrize(
+    "shape,size",
+    [
+        ((64, 48, 3), (32, 24)),
+        ((64, 48), (32, 48)),
+        ((64, 48, 1), (64, 24)),
+        ((30, 40, 3), (15, 10)),
+        ((64, 64, 3), (16, 16)),
+        ((33, 20, 3), (11, 10)),
+    ],
+)
 def test_resize_area_block_path_equals_the_axis_path(rng, shape, size):
     a = (rng.random(shape) * 10 - 2).astype(np.float32)
     want = io._area_axis(io._area_axis(a, size[0], 0), size[1], 1).astype(np.float32)

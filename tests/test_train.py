@@ -439,8 +439,13 @@ def test_bench_models_page(tiny, tiny_model, tmp_path, monkeypatch):
     assert models.unavailable() is None
     page = models.run(tmp_path / "docs", quick=True, log=lambda msg: None)
     text = page.read_text()
-    for row in ("| shipped model |", "| previous |", "| oracle constant |", "| training-set mean maps |",
-                "| EBREnv paper"):
+    for row in (
+        "| shipped model |",
+        "| previous |",
+        "| oracle constant |",
+        "| training-set mean maps |",
+        "| EBREnv paper",
+    ):
         assert row in text
     assert "quick run" in text and "| lighting | 2 |" in text and "**previous**:" in text
     # ebr estimate on the photo files, with and without refinement, judged per case on maps and lights

@@ -43,7 +43,7 @@ def test_bundled_cases_parse_and_cover_every_check():
 def test_quadrature_passes_and_biased_claim_fails(variant, tmp_path, capsys):
     """The quadrature mode holds a 2% budget on a glossy highlight; the closed form, held to 0%,
     is caught (its measured ~18% bias is far above 3·noise at 1024 spp)."""
-    path = _case_file(tmp_path, '"fast-quadrature", "fast-sg"', 'fast-sg = 0.0')
+    path = _case_file(tmp_path, '"fast-quadrature", "fast-sg"', "fast-sg = 0.0")
     md = tmp_path / "v.md"
     rc = main(["validate", str(path), "--spp", "1024", "--json", "--markdown", str(md)])
     out = json.loads(capsys.readouterr().out)
@@ -70,11 +70,14 @@ def test_builtin_bsdf_check_on_an_xml_scene(variant, tmp_path, capsys):
     assert rc == (0 if out["passed"] else 1)
 
 
-@pytest.mark.parametrize("argv, needle", [
-    (["validate", "missing.toml"], "no such file"),
-    (["validate", "--case", "no_such_case"], "no such case"),
-    (["validate", "--spp", "0"], "--spp"),
-])
+@pytest.mark.parametrize(
+    "argv, needle",
+    [
+        (["validate", "missing.toml"], "no such file"),
+        (["validate", "--case", "no_such_case"], "no such case"),
+        (["validate", "--spp", "0"], "--spp"),
+    ],
+)
 def test_bad_input_is_one_line_exit_2(variant, argv, needle, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()

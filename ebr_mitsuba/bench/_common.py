@@ -20,5 +20,7 @@ def machine() -> str:
     from ..variant import describe
 
     d = describe()
-    return (f"{platform.processor() or platform.machine()}, {os.cpu_count()} logical cores (shared), "
-            f"{d['variant']}, Mitsuba {d['mitsuba']}, Dr.Jit {d['drjit']}, LLVM {d.get('llvm', '-')}")
+    return (
+        f"{platform.processor() or platform.machine()}, {os.cpu_count()} logical cores (shared), "
+        f"{d['variant']}, Mitsuba {d['mitsuba']}, Dr.Jit {d['drjit']}, LLVM {d.get('llvm', '-')}"
+    )

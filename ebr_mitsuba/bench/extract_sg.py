@@ -96,10 +96,20 @@ class Settings:
 
 FULL = Settings()
 QUICK = Settings(
-    size=24, real_spp=16, test_spp=16, procedural_seeds=PROCEDURAL_SEEDS[:1], real_maps=1, iters=16,
+    size=24,
+    real_spp=16,
+    test_spp=16,
+    procedural_seeds=PROCEDURAL_SEEDS[:1],
+    real_maps=1,
+    iters=16,
     methods=("quad-tree init only", "+ densification (default)", "Two-Shot baseline (24 Fibonacci, NNLS)"),
-    mode_groups=("procedural",), study_size=16, study_seeds=PROCEDURAL_SEEDS[:1],
-    study_grid=DEFAULT_EXEMPLAR_ROUGHNESS, study_steps=1, timing_size=32, timing_iters=10,
+    mode_groups=("procedural",),
+    study_size=16,
+    study_seeds=PROCEDURAL_SEEDS[:1],
+    study_grid=DEFAULT_EXEMPLAR_ROUGHNESS,
+    study_steps=1,
+    timing_size=32,
+    timing_iters=10,
 )
 PEAK_FLOP_PER_CYCLE = 32  # fp32 per core: 2 FMA pipes × 8 lanes × 2 (Zen 4 runs AVX-512 as 2×256 bit)
 

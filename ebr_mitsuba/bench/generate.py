@@ -69,8 +69,18 @@ class Settings:
 
 
 FULL = Settings()
-QUICK = Settings(size=32, throughput_samples=1, error_samples=1, fit_lobes=(8,), fit_iterations=30,
-                 fit_res=16, fit_spp=16, raster=(64, 128), sheet_samples=4, sheet_res=32)
+QUICK = Settings(
+    size=32,
+    throughput_samples=1,
+    error_samples=1,
+    fit_lobes=(8,),
+    fit_iterations=30,
+    fit_res=16,
+    fit_spp=16,
+    raster=(64, 128),
+    sheet_samples=4,
+    sheet_res=32,
+)
 
 
 def _near_train_config():
@@ -81,6 +91,7 @@ def _near_train_config():
 
 # -- 1. throughput -------------------------------------------------------------------------------
 
+
 def throughput(config, samples: int = THROUGHPUT_SAMPLES, size: int = SIZE) -> list[dict]:
     import drjit as dr
 
@@ -89,11 +100,16 @@ def throughput(config, samples: int = THROUGHPUT_SAMPLES, size: int = SIZE) -> l
 
     base = config.with_changes("dataset", resolution=size)
     spp = base.render.spp
-    variants = [("mitsuba", f"spp {spp}", base),
-                ("mitsuba", f"spp {4 * spp}", base.with_changes("render", spp=4 * spp)),
-                ("fast", "sg", base.with_changes("render", renderer="fast", fast_mode="sg")),
-                ("fast", f"quadrature {base.render.fast_spp}",
-                 base.with_changes("render", renderer="fast", fast_mode="quadrature"))]
+    variants = [
+        ("mitsuba", f"spp {spp}", base),
+        ("mitsuba", f"spp {4 * spp}", base.with_changes("render", spp=4 * spp)),
+        ("fast", "sg", base.with_changes("render", renderer="fast", fast_mode="sg")),
+        (
+            "fast",
+            f"quadrature {base.render.fast_spp}",
+            base.with_changes("render", renderer="fast", fast_mode="quadrature"),
+        ),
+    ]
     rows = []
     threads = dr.thread_count()
     dr.set_thread_count(1)
@@ -106,14 +122,22 @@ def throughput(config, samples: int = THROUGHPUT_SAMPLES, size: int = SIZE) -> l
                 for i in range(1, samples + 1):
                     make_sample(plan, i, Path(tmp))
                 seconds = time.perf_counter() - t0
-            rows.append({"renderer": renderer, "setting": setting, "samples": samples,
-                         "seconds_per_sample": seconds / samples, "samples_per_second": samples / seconds})
+            rows.append(
+                {
+                    "renderer": renderer,
+                    "setting": setting,
+                    "samples": samples,
+                    "seconds_per_sample": seconds / samples,
+                    "samples_per_second": samples / seconds,
+                }
+            )
     finally:
         dr.set_thread_count(threads)
     return rows
 
 
 # -- 2. fast vs mitsuba --------------------------------------------------------------------------------
+
 
 def _kinds(clean) -> dict:
     out = {f"photo {k}": v for k, v in clean.shots.items()}
@@ -168,13 +192,16 @@ def fast_vs_mitsuba(config, samples: int = ERROR_SAMPLES, size: int = SIZE) -> l
 
 # -- 3. SG fit comparison -------------------------------------------------------------------------
 
+
 def _test_materials(size: int):
     from ..procedural import make_material
     from ..svbrdf import SVBRDF
 
     mats = [(f"exemplar r={r:g}", SVBRDF.uniform(size, size, 0.1, 0.2, r)) for r in (0.1, 0.3, 0.6, 0.9)]
-    mats += [("procedural:tiles:3", make_material("tiles", 3, size)),
-             ("procedural:metal:2", make_material("metal", 2, size))]
+    mats += [
+        ("procedural:tiles:3", make_material("tiles", 3, size)),
+        ("procedural:metal:2", make_material("metal", 2, size)),
+    ]
     return mats
 
 
@@ -192,8 +219,14 @@ def _crn_render(svbrdf, bsdf, emitter, shot, spp: int, seed: int) -> np.ndarray:
     return np.array(image, dtype=np.float32).reshape(size[0], size[1], -1)[..., :3]
 
 
-def fit_comparison(data_dir: Path, lobes_ours=FIT_LOBES, iterations: int = FIT_ITERATIONS, res: int = FIT_RES,
-                   spp: int = FIT_SPP, raster: tuple = RASTER) -> dict:
+def fit_comparison(
+    data_dir: Path,
+    lobes_ours=FIT_LOBES,
+    iterations: int = FIT_ITERATIONS,
+    res: int = FIT_RES,
+    spp: int = FIT_SPP,
+    raster: tuple = RASTER,
+) -> dict:
     import mitsuba as mi
 
     from ..envfit import fit_error, fit_sg, load_physg_fit, resample_equirect
@@ -221,11 +254,17 @@ def fit_comparison(data_dir: Path, lobes_ours=FIT_LOBES, iterations: int = FIT_I
         for name in fits:
             row[name] = rel_rmse(_crn_render(svbrdf, bsdf, emitters[name], shot, spp, seed=1), ref)
         render_rows.append(row)
-    return {"map_rows": map_rows, "render_rows": render_rows, "fits": list(fits), "map": PEER_MAP,
-            "iterations": iterations}
+    return {
+        "map_rows": map_rows,
+        "render_rows": render_rows,
+        "fits": list(fits),
+        "map": PEER_MAP,
+        "iterations": iterations,
+    }
 
 
 # -- 4. contact sheet --------------------------------------------------------------------------------
+
 
 def sheet(config, out_png: Path, samples: int = SHEET_SAMPLES, res: int = SHEET_RES) -> Path:
     from ..data.generate import generate
@@ -240,6 +279,7 @@ def sheet(config, out_png: Path, samples: int = SHEET_SAMPLES, res: int = SHEET_
 
 
 # -- the page --------------------------------------------------------------------------------------
+
 
 def _pct(v: float) -> str:
     return f"{100.0 * v:.1f} %"
@@ -265,8 +305,11 @@ def run(out_dir: str | os.PathLike = "docs/bench", quick: bool = False) -> Path:
     tp = throughput(config, s.throughput_samples, s.size)
     err = fast_vs_mitsuba(config, s.error_samples, s.size)
     data_dir = _data_dir()
-    fits = (fit_comparison(data_dir, s.fit_lobes, s.fit_iterations, s.fit_res, s.fit_spp, s.raster)
-            if data_dir is not None else None)
+    fits = (
+        fit_comparison(data_dir, s.fit_lobes, s.fit_iterations, s.fit_res, s.fit_spp, s.raster)
+        if data_dir is not None
+        else None
+    )
     sheet_png = sheet(config, out / "generate_sheet.png", s.sheet_samples, s.sheet_res)
     r = config.render
     lines = [
@@ -290,8 +333,10 @@ def run(out_dir: str | os.PathLike = "docs/bench", quick: bool = False) -> Path:
         "|---|---|---:|---:|",
     ]
     for row in tp:
-        lines.append(f"| {row['renderer']} | {row['setting']} | {row['seconds_per_sample']:.3f} | "
-                     f"{row['samples_per_second']:.2f} |")
+        lines.append(
+            f"| {row['renderer']} | {row['setting']} | {row['seconds_per_sample']:.3f} | "
+            f"{row['samples_per_second']:.2f} |"
+        )
     lines += [
         "",
         "## Fast renderer against Mitsuba on the same samples",
@@ -307,14 +352,20 @@ def run(out_dir: str | os.PathLike = "docs/bench", quick: bool = False) -> Path:
         "|---|---:|---:|---:|---:|---:|",
     ]
     for row in err:
-        lines.append(f"| {row['image']} | {_pct(row['mitsuba_noise'])} | {_pct(row['sg'])} | "
-                     f"{_pct(row['sg_bias'])} | {_pct(row['quadrature'])} | {_pct(row['quadrature_bias'])} |")
-    lines += ["", "Point-light exemplars and flash-only images have no environment term: there the two "
-              "renderers differ only by Mitsuba's pixel-footprint integration (box filter) against the fast "
-              "renderer's pixel-centre shading, and by noise. The `sg` mode's bias at roughness 0.3–0.6 is "
-              "the closed-form SG×GGX approximation's overshoot (`ebr_mitsuba.render.env_sg`); the "
-              "`quadrature` mode is unbiased but is itself a 64-direction estimate, whose own noise "
-              "remains in its bias column.", ""]
+        lines.append(
+            f"| {row['image']} | {_pct(row['mitsuba_noise'])} | {_pct(row['sg'])} | "
+            f"{_pct(row['sg_bias'])} | {_pct(row['quadrature'])} | {_pct(row['quadrature_bias'])} |"
+        )
+    lines += [
+        "",
+        "Point-light exemplars and flash-only images have no environment term: there the two "
+        "renderers differ only by Mitsuba's pixel-footprint integration (box filter) against the fast "
+        "renderer's pixel-centre shading, and by noise. The `sg` mode's bias at roughness 0.3–0.6 is "
+        "the closed-form SG×GGX approximation's overshoot (`ebr_mitsuba.render.env_sg`); the "
+        "`quadrature` mode is unbiased but is itself a 64-direction estimate, whose own noise "
+        "remains in its bias column.",
+        "",
+    ]
     lines += ["## SG fit of an environment map against the peer's fit", ""]
     if fits is None:
         lines += ["Skipped: the shared assets (`EBR_DATA_DIR`) are not available on this machine.", ""]
@@ -331,8 +382,10 @@ def run(out_dir: str | os.PathLike = "docs/bench", quick: bool = False) -> Path:
         ]
         for row in fits["map_rows"]:
             sec = "–" if row["seconds"] is None else f"{row['seconds']:.1f} s"
-            lines.append(f"| {row['fit']} | {_pct(row['rel_l1'])} | {_pct(row['rel_rmse'])} | "
-                         f"{row['log_rmse']:.3f} | {row['energy']:+.3f} | {sec} |")
+            lines.append(
+                f"| {row['fit']} | {_pct(row['rel_l1'])} | {_pct(row['rel_rmse'])} | "
+                f"{row['log_rmse']:.3f} | {row['energy']:+.3f} | {sec} |"
+            )
         lines += [
             "",
             f"Renders of test materials (near no-flash shot, {s.fit_res}², {s.fit_spp} spp) under each fit "
@@ -347,8 +400,11 @@ def run(out_dir: str | os.PathLike = "docs/bench", quick: bool = False) -> Path:
             "|---|---:|" + "---:|" * len(fits["fits"]),
         ]
         for row in fits["render_rows"]:
-            lines.append(f"| {row['material']} | {_pct(row['noise'])} | "
-                         + " | ".join(_pct(row[name]) for name in fits["fits"]) + " |")
+            lines.append(
+                f"| {row['material']} | {_pct(row['noise'])} | "
+                + " | ".join(_pct(row[name]) for name in fits["fits"])
+                + " |"
+            )
         lines.append("")
     lines += [
         "## Contact sheet",

@@ -49,8 +49,13 @@ SHEET_QUALITY = 85  # JPEG quality of the contact sheet
 MAP_NAMES = ("normal", "diffuse", "roughness", "specular")
 COLUMNS = (*MAP_NAMES, "mean")
 # EBREnv (Table 1, near field; their test set is MatSynth renders, not this split).
-PAPER_ROW = {"normal": 0.0351, "diffuse": 0.0285, "roughness": 0.0718, "specular": 0.0446,
-             "rerender_rmse": 0.0394}
+PAPER_ROW = {
+    "normal": 0.0351,
+    "diffuse": 0.0285,
+    "roughness": 0.0718,
+    "specular": 0.0446,
+    "rerender_rmse": 0.0394,
+}
 REGENERATE = """\
 export EBR_DATA_DIR=../shared/data EBR_SPLIT_DATA=/tmp/ebr-data/real_test \\
        EBR_TRAIN_DATA=/tmp/ebr-data/real_train
@@ -87,8 +92,10 @@ def _refine_options() -> dict:
     except json.JSONDecodeError:
         opts = None
     if not isinstance(opts, dict):
-        raise InputError(f"EBR_REFINE={text!r}: give the refinement options as a JSON object, e.g. "
-                         '\'{"steps": 100, "basis": 2}\'')
+        raise InputError(
+            f"EBR_REFINE={text!r}: give the refinement options as a JSON object, e.g. "
+            '\'{"steps": 100, "basis": 2}\''
+        )
     return opts
 
 
@@ -204,8 +211,9 @@ def refinement_verdict(before: list[dict], after: list[dict]) -> dict:
         maps = a["per_map_rmse"]["mean"] < b["per_map_rmse"]["mean"]
         lights = a["rerender_rmse"] < b["rerender_rmse"]
         per_map = {k: a["per_map_rmse"][k] < b["per_map_rmse"][k] for k in MAP_NAMES}
-        cases.append({"index": b["index"], "maps": maps, "lights": lights, "both": maps and lights,
-                      **per_map})
+        cases.append(
+            {"index": b["index"], "maps": maps, "lights": lights, "both": maps and lights, **per_map}
+        )
     n = max(len(cases), 1)
     out = {k: sum(c[k] for c in cases) / n for k in ("maps", "lights", "both", *MAP_NAMES)}
     out["n"] = len(cases)
@@ -225,13 +233,26 @@ def capture_check(work: Path) -> dict:
     from ..estimate.pipeline import EstimateConfig, run_estimate
 
     cap = work / "capture"
-    capture(CAPTURE_CHECK["material"], CAPTURE_CHECK["env"], CAPTURE_CHECK["setup"], cap,
-            res=CAPTURE_CHECK["res"], progress=False)
-    summary = run_estimate(EstimateConfig(flash=str(cap / "flash.exr"), noflash=str(cap / "noflash.exr"),
-                                          out=str(work / "estimate")))
+    capture(
+        CAPTURE_CHECK["material"],
+        CAPTURE_CHECK["env"],
+        CAPTURE_CHECK["setup"],
+        cap,
+        res=CAPTURE_CHECK["res"],
+        progress=False,
+    )
+    summary = run_estimate(
+        EstimateConfig(
+            flash=str(cap / "flash.exr"), noflash=str(cap / "noflash.exr"), out=str(work / "estimate")
+        )
+    )
     net = summary["rerender_error"]["network"]
-    return {"flash_rel_rmse": net["flash"]["rel_rmse"], "noflash_rel_rmse": net["noflash"]["rel_rmse"],
-            "exposure": summary["exposure"], "flash": summary["flash"]["flash"]}
+    return {
+        "flash_rel_rmse": net["flash"]["rel_rmse"],
+        "noflash_rel_rmse": net["noflash"]["rel_rmse"],
+        "exposure": summary["exposure"],
+        "flash": summary["flash"]["flash"],
+    }
 
 
 def _capture_lines(check: dict | None) -> list[str]:
@@ -269,9 +290,12 @@ def _verdict_lines(verdict: dict | None) -> list[str]:
         f"{'yes' if ok else 'no'}). Per map, lower in: normal {pct['normal']}, diffuse {pct['diffuse']}, "
         f"roughness {pct['roughness']}, specular {pct['specular']}. Estimate + refinement took "
         f"{verdict['seconds_per_sample']['with']:.1f} s per capture (whole `ebr estimate`, in process). "
-        + (f"`ebr estimate` refines by default (`--refine-steps {default}`)." if default else
-           "`ebr estimate` does not refine by default (`--refine-steps 0`): refinement is an option, "
-           "for the photos' re-render rather than for the maps."),
+        + (
+            f"`ebr estimate` refines by default (`--refine-steps {default}`)."
+            if default
+            else "`ebr estimate` does not refine by default (`--refine-steps 0`): refinement is an option, "
+            "for the photos' re-render rather than for the maps."
+        ),
         "",
     ]
 
@@ -289,8 +313,12 @@ def _sheet(truths, rows: dict[str, list], path: Path) -> None:
 
     def tiles(m):
         rough = np.repeat(m.roughness[..., None], 3, axis=2)
-        return [(m.normal + 1) / 2, linear_to_srgb(np.clip(m.diffuse, 0, 1)),
-                linear_to_srgb(np.clip(m.specular, 0, 1)), rough]
+        return [
+            (m.normal + 1) / 2,
+            linear_to_srgb(np.clip(m.diffuse, 0, 1)),
+            linear_to_srgb(np.clip(m.specular, 0, 1)),
+            rough,
+        ]
 
     gap = 2
     lines = []
@@ -298,8 +326,9 @@ def _sheet(truths, rows: dict[str, list], path: Path) -> None:
         parts = tiles(truth)
         for name in rows:
             parts += [np.ones_like(parts[0])[:, :gap]] + tiles(rows[name][i][1])
-        lines.append(np.concatenate([np.pad(p, ((0, 0), (0, gap), (0, 0)), constant_values=1) for p in parts],
-                                    axis=1))
+        lines.append(
+            np.concatenate([np.pad(p, ((0, 0), (0, gap), (0, 0)), constant_values=1) for p in parts], axis=1)
+        )
         lines.append(np.ones((gap, lines[-1].shape[1], 3)))
     from PIL import Image
 
@@ -350,8 +379,9 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
 
     data = os.environ.get("EBR_SPLIT_DATA")
     if not data or not Path(data).is_dir():
-        raise InputError(f"$EBR_SPLIT_DATA = {data!r}: not a data set; make it with the commands in "
-                         f"docs/models.md")
+        raise InputError(
+            f"$EBR_SPLIT_DATA = {data!r}: not a data set; make it with the commands in docs/models.md"
+        )
     out_dir = Path(out_dir)
     limit = QUICK_LIMIT if quick else 0
     ds = GeneratedDataset(data)
@@ -365,8 +395,9 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
     train = os.environ.get("EBR_TRAIN_DATA")
     if train:
         mean = MeanMaps.from_dataset(train)
-        predictors.append(("training-set mean maps",
-                           lambda item, names: mean.predict(tuple(item["maps"].shape[1:]))))
+        predictors.append(
+            ("training-set mean maps", lambda item, names: mean.predict(tuple(item["maps"].shape[1:])))
+        )
 
     refine_opts = _refine_options()
     refine_cfg = RefineConfig(**refine_opts)
@@ -385,17 +416,25 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
         finish(name, evaluate(_recording(predict, store), data, limit=n, seed=0, progress=progress), store)
     verdict = None
     if refine_cfg.steps > 0:
-        label = {"estimate": "shipped model, ebr estimate",
-                 "estimate + refinement": "shipped model, ebr estimate + refinement "
-                                          f"({_refine_text(refine_opts)})"}
+        label = {
+            "estimate": "shipped model, ebr estimate",
+            "estimate + refinement": "shipped model, ebr estimate + refinement "
+            f"({_refine_text(refine_opts)})",
+        }
         log(f"[bench models] {label['estimate']}, with and without refinement")
         stores: dict[str, list] = {}
-        many = evaluate_many(_recording_many(estimate_predictor(load_model(None), data, refine_cfg), stores),
-                             data, limit=n, seed=0, progress=progress)
+        many = evaluate_many(
+            _recording_many(estimate_predictor(load_model(None), data, refine_cfg), stores),
+            data,
+            limit=n,
+            seed=0,
+            progress=progress,
+        )
         for key, res in many.items():
             finish(label[key], res, stores[key])
-        verdict = refinement_verdict(many["estimate"]["per_sample"],
-                                     many["estimate + refinement"]["per_sample"])
+        verdict = refinement_verdict(
+            many["estimate"]["per_sample"], many["estimate + refinement"]["per_sample"]
+        )
         verdict["options"] = refine_opts
     seconds = time.perf_counter() - t0
     import tempfile
@@ -413,9 +452,19 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
         _plot_loss(summary, out_dir / "models_loss.png")
     page = _page(results, ds, n, seconds, quick, summary, run_dir, verdict, check)
     atomic_write_text(out_dir / "models.md", page)
-    atomic_write_text(out_dir / "models.json", json.dumps(
-        {**{k: {kk: vv for kk, vv in v.items() if kk != "per_sample"} for k, v in results.items()},
-         "refinement_verdict": verdict, "capture_check": check}, indent=1, default=float) + "\n")
+    atomic_write_text(
+        out_dir / "models.json",
+        json.dumps(
+            {
+                **{k: {kk: vv for kk, vv in v.items() if kk != "per_sample"} for k, v in results.items()},
+                "refinement_verdict": verdict,
+                "capture_check": check,
+            },
+            indent=1,
+            default=float,
+        )
+        + "\n",
+    )
     return out_dir / "models.md"
 
 
@@ -435,13 +484,18 @@ def _acceptance(results: dict) -> list[str]:
         structure = res["normal_structure"]
         checks = [
             (f"mean per-map RMSE {pm['mean']:.4f} ≤ 0.045", pm["mean"] <= 0.045),
-            (f"below the oracle constant on the mean ({pm['mean']:.4f} vs {po['mean']:.4f}), diffuse "
-             f"({pm['diffuse']:.4f} vs {po['diffuse']:.4f}) and normal "
-             f"({pm['normal']:.4f} vs {po['normal']:.4f})",
-             pm["mean"] < po["mean"] and pm["diffuse"] < po["diffuse"] and pm["normal"] < po["normal"]),
+            (
+                f"below the oracle constant on the mean ({pm['mean']:.4f} vs {po['mean']:.4f}), diffuse "
+                f"({pm['diffuse']:.4f} vs {po['diffuse']:.4f}) and normal "
+                f"({pm['normal']:.4f} vs {po['normal']:.4f})",
+                pm["mean"] < po["mean"] and pm["diffuse"] < po["diffuse"] and pm["normal"] < po["normal"],
+            ),
             (f"specular RMSE {pm['specular']:.4f} ≤ 0.040", pm["specular"] <= 0.040),
-            (f"re-render RMSE {res['rerender_rmse']:.4f} at least 20 % below the oracle's "
-             f"{oracle['rerender_rmse']:.4f}", res["rerender_rmse"] <= 0.8 * oracle["rerender_rmse"]),
+            (
+                f"re-render RMSE {res['rerender_rmse']:.4f} at least 20 % below the oracle's "
+                f"{oracle['rerender_rmse']:.4f}",
+                res["rerender_rmse"] <= 0.8 * oracle["rerender_rmse"],
+            ),
             (f"normal structure {structure:.2f} ≥ 0.5 of the truth's", structure >= 0.5),
         ]
         verdicts = "; ".join(f"{text} — {'yes' if ok else 'no'}" for text, ok in checks)
@@ -476,32 +530,48 @@ def _model_card(summary: dict | None, run_dir: str | None) -> list[str]:
         "|---|---:|---:|---:|---:|---:|",
     ]
     for name, p in summary["phases"].items():
-        lines.append(f"| {name} | {p['steps']} | {p['first_loss']:.4f} | {p['final_loss']:.4f} | "
-                     f"{p['samples_per_s']:.1f} | {p['seconds']:.0f} |")
+        lines.append(
+            f"| {name} | {p['steps']} | {p['first_loss']:.4f} | {p['final_loss']:.4f} | "
+            f"{p['samples_per_s']:.1f} | {p['seconds']:.0f} |"
+        )
     return lines + ["", "![training loss per phase](models_loss.png)", ""]
 
 
-def _page(results: dict, ds, n: int, seconds: float, quick: bool, summary: dict | None = None,
-          run_dir: str | None = None, verdict: dict | None = None, check: dict | None = None) -> str:
+def _page(
+    results: dict,
+    ds,
+    n: int,
+    seconds: float,
+    quick: bool,
+    summary: dict | None = None,
+    run_dir: str | None = None,
+    verdict: dict | None = None,
+    check: dict | None = None,
+) -> str:
     from ..data.split import load_split
 
     split = load_split()
-    head = ("| predictor | normal | diffuse | roughness | specular | mean | re-render | SSIM "
-            "| normal structure |")
+    head = (
+        "| predictor | normal | diffuse | roughness | specular | mean | re-render | SSIM | normal structure |"
+    )
     rule = "|---|---:|---:|---:|---:|---:|---:|---:|---:|"
     rows = [_row(k, v, f"{v['normal_structure']:.2f}") for k, v in results.items()]
     paper = " | ".join(f"{PAPER_ROW[k]:.4f}" for k in ("normal", "diffuse", "roughness", "specular"))
     paper_mean = np.mean([PAPER_ROW[k] for k in ("normal", "diffuse", "roughness", "specular")])
-    rows.append(f"| EBREnv paper, Table 1 near field (MatSynth test set) | {paper} | {paper_mean:.4f} | "
-                f"{PAPER_ROW['rerender_rmse']:.4f} | – | – |")
+    rows.append(
+        f"| EBREnv paper, Table 1 near field (MatSynth test set) | {paper} | {paper_mean:.4f} | "
+        f"{PAPER_ROW['rerender_rmse']:.4f} | – | – |"
+    )
     classes = sorted(next(iter(results.values()))["classes"])
     chead = "| class | n | " + " | ".join(results) + " |"
     crule = "|---|---:|" + "---:|" * len(results)
     crows = []
     for c in classes:
         first = next(iter(results.values()))["classes"][c]
-        cells = " | ".join(f"{r['classes'][c]['per_map_rmse']['mean']:.4f} / "
-                           f"{r['classes'][c]['rerender_rmse']:.3f}" for r in results.values())
+        cells = " | ".join(
+            f"{r['classes'][c]['per_map_rmse']['mean']:.4f} / {r['classes'][c]['rerender_rmse']:.3f}"
+            for r in results.values()
+        )
         crows.append(f"| {c} | {first['n']} | {cells} |")
     cfg = ds.dataset.get("config", {})
     render = cfg.get("render", {})
@@ -530,7 +600,9 @@ def _page(results: dict, ds, n: int, seconds: float, quick: bool, summary: dict 
         *_model_card(summary, run_dir),
         "## On the fixed test split",
         "",
-        head, rule, *rows,
+        head,
+        rule,
+        *rows,
         "",
         "The paper's row is for orientation only: it is measured on another test set (MatSynth renders) with "
         "paper-size networks trained on a GPU.",
@@ -545,7 +617,9 @@ def _page(results: dict, ds, n: int, seconds: float, quick: bool, summary: dict 
         *_capture_lines(check),
         "## By material class (mean per-map RMSE / re-render RMSE)",
         "",
-        chead, crule, *crows,
+        chead,
+        crule,
+        *crows,
         "",
         "![mean per-map RMSE by class](models_classes.png)",
         "",

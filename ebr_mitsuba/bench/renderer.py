@@ -79,9 +79,20 @@ class Settings:
 
 
 FULL = Settings(points=64, ref_spp=32768, texture=64, time_res=256, mitsuba_time_res=128, repeats=3)
-QUICK = Settings(points=6, ref_spp=256, texture=16, time_res=16, mitsuba_time_res=16, repeats=1,
-                 roughness=(0.2, 0.9), views=(0.0, 80.0), mitsuba_spp=(4, 16), quadrature_spp=(4, 16),
-                 envs=ENV_SPECS[:1], svbrdfs=SVBRDF_MATERIALS[:1])
+QUICK = Settings(
+    points=6,
+    ref_spp=256,
+    texture=16,
+    time_res=16,
+    mitsuba_time_res=16,
+    repeats=1,
+    roughness=(0.2, 0.9),
+    views=(0.0, 80.0),
+    mitsuba_spp=(4, 16),
+    quadrature_spp=(4, 16),
+    envs=ENV_SPECS[:1],
+    svbrdfs=SVBRDF_MATERIALS[:1],
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -116,10 +127,15 @@ def _materials(settings: Settings) -> list[Material]:
     from ..svbrdf import SVBRDF
 
     n = settings.texture
-    mats = [Material(f"{name} r={r:g}", name, f"{r:g}", SVBRDF.uniform(n, n, d, s, r))
-            for name, d, s in UNIFORM_MATERIALS for r in settings.roughness]
-    mats += [Material(f"{family}:{seed}", "svbrdf", "-", make_material(family, seed, size=n))
-             for family, seed in settings.svbrdfs]
+    mats = [
+        Material(f"{name} r={r:g}", name, f"{r:g}", SVBRDF.uniform(n, n, d, s, r))
+        for name, d, s in UNIFORM_MATERIALS
+        for r in settings.roughness
+    ]
+    mats += [
+        Material(f"{family}:{seed}", "svbrdf", "-", make_material(family, seed, size=n))
+        for family, seed in settings.svbrdfs
+    ]
     return mats
 
 
@@ -147,18 +163,26 @@ def _plane(svbrdf, ij, env):
     from ..validate import PlaneScene
 
     i, j = ij
-    return PlaneScene(normal=svbrdf.normal[i, j].astype(np.float64),
-                      diffuse=svbrdf.diffuse[i, j].astype(np.float64),
-                      specular=svbrdf.specular[i, j].astype(np.float64),
-                      roughness=svbrdf.roughness[i, j].astype(np.float64),
-                      axis=env.axis.astype(np.float64), sharpness=env.sharpness.astype(np.float64),
-                      amplitude=env.amplitude.astype(np.float64), light=None, intensity=np.zeros(3))
+    return PlaneScene(
+        normal=svbrdf.normal[i, j].astype(np.float64),
+        diffuse=svbrdf.diffuse[i, j].astype(np.float64),
+        specular=svbrdf.specular[i, j].astype(np.float64),
+        roughness=svbrdf.roughness[i, j].astype(np.float64),
+        axis=env.axis.astype(np.float64),
+        sharpness=env.sharpness.astype(np.float64),
+        amplitude=env.amplitude.astype(np.float64),
+        light=None,
+        intensity=np.zeros(3),
+    )
 
 
 def setting_labels(settings: Settings) -> list[str]:
     """The settings compared, in table order: ``mitsuba N``, ``sg``, ``quadrature N``."""
-    return ([f"mitsuba {s}" for s in settings.mitsuba_spp] + ["sg"]
-            + [f"quadrature {s}" for s in settings.quadrature_spp])
+    return (
+        [f"mitsuba {s}" for s in settings.mitsuba_spp]
+        + ["sg"]
+        + [f"quadrature {s}" for s in settings.quadrature_spp]
+    )
 
 
 def measure_errors(settings: Settings, seed: int = 0, progress=None) -> list[dict]:
@@ -174,8 +198,13 @@ def measure_errors(settings: Settings, seed: int = 0, progress=None) -> list[dic
     rows = []
     for m_idx, mat in enumerate(_materials(settings)):
         for e_idx, (env_name, env) in enumerate(_environments(settings)):
-            scene = mi.load_dict({"type": "scene", "sample": sample_shape_dict(svbrdf_bsdf_dict(mat.svbrdf)),
-                                  "env": sg_emitter_dict(env)})
+            scene = mi.load_dict(
+                {
+                    "type": "scene",
+                    "sample": sample_shape_dict(svbrdf_bsdf_dict(mat.svbrdf)),
+                    "env": sg_emitter_dict(env),
+                }
+            )
             for v_idx, view in enumerate(settings.views):
                 case_seed = (seed * 1000 + m_idx) * 100 + e_idx * 10 + v_idx
                 pts, cams, ij = _query(mat.svbrdf, settings.points, view, case_seed)
@@ -184,16 +213,25 @@ def measure_errors(settings: Settings, seed: int = 0, progress=None) -> list[dic
                 plane = _plane(mat.svbrdf, ij, env)
                 errors = {}
                 for k, spp in enumerate(settings.mitsuba_spp):
-                    est = trace(scene, cams, dirs, spp=spp, seed=case_seed + 7919 * (k + 1),
-                                integrator=integrator)
+                    est = trace(
+                        scene, cams, dirs, spp=spp, seed=case_seed + 7919 * (k + 1), integrator=integrator
+                    )
                     errors[f"mitsuba {spp}"] = rel_rmse(est.mean, ref.mean)
                 errors["sg"] = rel_rmse(fast_radiance(plane, pts, cams, "sg", 1), ref.mean)
                 for spp in settings.quadrature_spp:
                     quad = fast_radiance(plane, pts, cams, "quadrature", spp)
                     errors[f"quadrature {spp}"] = rel_rmse(quad, ref.mean)
-                rows.append({"material": mat.name, "group": mat.group, "bucket": mat.bucket, "env": env_name,
-                             "view": float(view),
-                             "ref_noise": ref.relative_noise(), "errors": errors})
+                rows.append(
+                    {
+                        "material": mat.name,
+                        "group": mat.group,
+                        "bucket": mat.bucket,
+                        "env": env_name,
+                        "view": float(view),
+                        "ref_noise": ref.relative_noise(),
+                        "errors": errors,
+                    }
+                )
                 if progress is not None:
                     progress(rows[-1])
     return rows
@@ -226,18 +264,23 @@ def measure_times(settings: Settings) -> dict[str, float]:
     mpx = n * n / 1e6
     out["sg"] = _median_time(lambda: render_numpy(fast_mat, env, shot, mode="sg"), settings.repeats) / mpx
     for spp in settings.quadrature_spp:
-        out[f"quadrature {spp}"] = _median_time(
-            lambda s=spp: render_numpy(fast_mat, env, shot, mode="quadrature", spp=s), settings.repeats) / mpx
+        out[f"quadrature {spp}"] = (
+            _median_time(
+                lambda s=spp: render_numpy(fast_mat, env, shot, mode="quadrature", spp=s), settings.repeats
+            )
+            / mpx
+        )
     m = settings.mitsuba_time_res
     mitsuba_mat = make_material(family, mseed, size=m)
     for spp in settings.mitsuba_spp:
         out[f"mitsuba {spp}"] = _median_time(
-            lambda s=spp: render_shot(mitsuba_mat, sg_emitter_dict(env), shot, s, seed=1),
-            settings.repeats) / (m * m / 1e6)
+            lambda s=spp: render_shot(mitsuba_mat, sg_emitter_dict(env), shot, s, seed=1), settings.repeats
+        ) / (m * m / 1e6)
     return out
 
 
 # -- summaries -----------------------------------------------------------------------------------
+
 
 def _mean(values) -> float:
     v = list(values)
@@ -292,20 +335,26 @@ def advice(rows: list[dict], labels: list[str], times: dict[str, float], targets
             picks.setdefault(cheapest({s: errs[s] for s in labels}, times, target), []).append(key)
         for choice, keys in sorted(picks.items(), key=lambda kv: times.get(kv[0], math.inf)):
             if choice is None:
-                lines.append(f"- Within {100 * target:g} %: no tested setting reaches it for "
-                             f"{_where(keys, views)}.")
+                lines.append(
+                    f"- Within {100 * target:g} %: no tested setting reaches it for {_where(keys, views)}."
+                )
             else:
-                lines.append(f"- Within {100 * target:g} %: **{choice}** ({times[choice]:.2g} s/Mpx) is the "
-                             f"cheapest for {_where(keys, views)}.")
+                lines.append(
+                    f"- Within {100 * target:g} %: **{choice}** ({times[choice]:.2g} s/Mpx) is the "
+                    f"cheapest for {_where(keys, views)}."
+                )
     (wg, wb, wv), worst = max(table.items(), key=lambda kv: kv[1]["sg"])
     bad = [k for k, e in table.items() if e["sg"] > targets[-1]]
-    lines.append(f"- The closed form (`sg`) is worst for {wg if wb == '-' else f'{wg} r={wb}'} at {wv}° "
-                 f"({100 * worst['sg']:.1f} % mean error); it exceeds {100 * targets[-1]:g} % for "
-                 f"{_where(bad, views) if bad else 'no bucket'}.")
+    lines.append(
+        f"- The closed form (`sg`) is worst for {wg if wb == '-' else f'{wg} r={wb}'} at {wv}° "
+        f"({100 * worst['sg']:.1f} % mean error); it exceeds {100 * targets[-1]:g} % for "
+        f"{_where(bad, views) if bad else 'no bucket'}."
+    )
     return lines
 
 
 # -- output --------------------------------------------------------------------------------------
+
 
 def _pct(v: float) -> str:
     return "inf" if not np.isfinite(v) else f"{100 * v:.2f} %"
@@ -332,8 +381,13 @@ def plot(rows: list[dict], labels: list[str], times: dict[str, float], views, pa
                 ax.plot(x, y, style, color=color, label=name, markersize=9 if name == "sg" else 5)
                 for s in labels:
                     if s.split()[0] == name and len(s.split()) > 1:
-                        ax.annotate(s.split()[1], (times[s], errs[s]), fontsize=7, xytext=(3, 3),
-                                    textcoords="offset points")
+                        ax.annotate(
+                            s.split()[1],
+                            (times[s], errs[s]),
+                            fontsize=7,
+                            xytext=(3, 3),
+                            textcoords="offset points",
+                        )
         ax.axhline(errs["ref_noise"], color="grey", lw=0.8, ls=":", label="reference noise")
         ax.set_xscale("log")
         ax.set_yscale("log")
@@ -386,24 +440,44 @@ def markdown(rows, labels, times, settings: Settings, seconds: float, quick: boo
     for s in labels:
         worst = max(v[s] for v in fine.values())
         lines.append(f"| {s} | {times[s]:.3g} | {_pct(by_setting[s])} | {_pct(worst)} |")
-    lines += ["", f"Reference noise (mean over cases): {_pct(by_setting['ref_noise'])}.", "",
-              "## Error by material, roughness and view", "",
-              "Mean relative RMSE over the environments (and the two materials, for the SVBRDF rows).", "",
-              "| material | roughness | view | ref noise | " + " | ".join(labels) + " |",
-              "|---|---|---:|---:|" + "---:|" * len(labels)]
+    lines += [
+        "",
+        f"Reference noise (mean over cases): {_pct(by_setting['ref_noise'])}.",
+        "",
+        "## Error by material, roughness and view",
+        "",
+        "Mean relative RMSE over the environments (and the two materials, for the SVBRDF rows).",
+        "",
+        "| material | roughness | view | ref noise | " + " | ".join(labels) + " |",
+        "|---|---|---:|---:|" + "---:|" * len(labels),
+    ]
     for (group, bucket, view), errs in fine.items():
-        lines.append(f"| {group} | {bucket} | {view}° | {_pct(errs['ref_noise'])} | "
-                     + " | ".join(_pct(errs[s]) for s in labels) + " |")
+        lines.append(
+            f"| {group} | {bucket} | {view}° | {_pct(errs['ref_noise'])} | "
+            + " | ".join(_pct(errs[s]) for s in labels)
+            + " |"
+        )
     env_table = bucket_table(rows, labels, lambda r: r["env"])
-    lines += ["", "## Error by environment", "", "| environment | ref noise | " + " | ".join(labels) + " |",
-              "|---|---:|" + "---:|" * len(labels)]
+    lines += [
+        "",
+        "## Error by environment",
+        "",
+        "| environment | ref noise | " + " | ".join(labels) + " |",
+        "|---|---:|" + "---:|" * len(labels),
+    ]
     for env, errs in env_table.items():
         cells = " | ".join(_pct(errs[s]) for s in labels)
         lines.append(f"| {env} | {_pct(errs['ref_noise'])} | {cells} |")
-    lines += ["", "![error against time](renderer.png)", "", "## Which mode when", "",
-              "Computed from the tables above (mean error of each material/roughness/view bucket, "
-              "time per megapixel):",
-              ""]
+    lines += [
+        "",
+        "![error against time](renderer.png)",
+        "",
+        "## Which mode when",
+        "",
+        "Computed from the tables above (mean error of each material/roughness/view bucket, "
+        "time per megapixel):",
+        "",
+    ]
     lines += advice(rows, labels, times)
     return "\n".join(lines) + "\n"
 
@@ -431,5 +505,16 @@ def run(out_dir: Path, quick: bool = False) -> Path:
     return path
 
 
-__all__ = ["FULL", "QUICK", "Settings", "advice", "bucket_table", "cheapest", "fine_key", "measure_errors",
-           "measure_times", "run", "setting_labels"]
+__all__ = [
+    "FULL",
+    "QUICK",
+    "Settings",
+    "advice",
+    "bucket_table",
+    "cheapest",
+    "fine_key",
+    "measure_errors",
+    "measure_times",
+    "run",
+    "setting_labels",
+]

@@ -45,8 +45,10 @@ def run(args) -> int:
         if report.ok:
             say(f"{args.dir}: {report.samples} samples verified, no problems")
             return 0
-        say(f"ebr dataset verify: {args.dir}: {len(report.errors)} problem(s) in {report.samples} checked "
-            f"samples")
+        say(
+            f"ebr dataset verify: {args.dir}: {len(report.errors)} problem(s) in {report.samples} checked "
+            f"samples"
+        )
         return 2
     from ..data.sheet import contact_sheet
 

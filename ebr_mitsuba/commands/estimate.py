@@ -136,8 +136,7 @@ def add_refine_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=d.basis,
         metavar="K",
-        help="specular and roughness as K basis materials with per-pixel weights (0: per pixel) "
-        f"[{d.basis}]",
+        help=f"specular and roughness as K basis materials with per-pixel weights (0: per pixel) [{d.basis}]",
     )
     parser.add_argument(
         "--render-mode", default=d.mode, metavar="M", help=f"environment term: sg or quadrature [{d.mode}]"

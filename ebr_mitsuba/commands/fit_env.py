@@ -24,14 +24,27 @@ def add_arguments(parser) -> None:
     parser.add_argument("map", metavar="MAP", help="equirectangular .hdr or .exr")
     parser.add_argument("--lobes", type=int, default=DEFAULT_LOBES, help=f"lobes (default {DEFAULT_LOBES})")
     parser.add_argument("--out", required=True, metavar="env.json", help="output SG environment")
-    parser.add_argument("--iters", type=int, default=DEFAULT_ITERATIONS,
-                        help=f"Adam iterations (default {DEFAULT_ITERATIONS})")
-    parser.add_argument("--height", type=int, default=DEFAULT_HEIGHT,
-                        help=f"rows of the resampled map the fit runs on (default {DEFAULT_HEIGHT})")
-    parser.add_argument("--lr", type=float, default=DEFAULT_LR,
-                        help=f"Adam learning rate (default {DEFAULT_LR})")
-    parser.add_argument("--log-weight", type=float, default=DEFAULT_LOG_WEIGHT,
-                        help=f"weight of the log-space term (default {DEFAULT_LOG_WEIGHT})")
+    parser.add_argument(
+        "--iters",
+        type=int,
+        default=DEFAULT_ITERATIONS,
+        help=f"Adam iterations (default {DEFAULT_ITERATIONS})",
+    )
+    parser.add_argument(
+        "--height",
+        type=int,
+        default=DEFAULT_HEIGHT,
+        help=f"rows of the resampled map the fit runs on (default {DEFAULT_HEIGHT})",
+    )
+    parser.add_argument(
+        "--lr", type=float, default=DEFAULT_LR, help=f"Adam learning rate (default {DEFAULT_LR})"
+    )
+    parser.add_argument(
+        "--log-weight",
+        type=float,
+        default=DEFAULT_LOG_WEIGHT,
+        help=f"weight of the log-space term (default {DEFAULT_LOG_WEIGHT})",
+    )
     parser.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
 
 
@@ -49,15 +62,24 @@ def run(args) -> int:
         last[0] = it
         bar.set_postfix(loss=f"{loss:.4g}")
 
-    result = fit_sg(emap, lobes=args.lobes, iterations=args.iters, height=args.height, lr=args.lr,
-                    log_weight=args.log_weight, progress=tick)
+    result = fit_sg(
+        emap,
+        lobes=args.lobes,
+        iterations=args.iters,
+        height=args.height,
+        lr=args.lr,
+        log_weight=args.log_weight,
+        progress=tick,
+    )
     bar.close()
     result.env.save(args.out)
     e = result.error
-    say(f"wrote {args.out}: {result.env.num_lobes} lobes in {result.seconds:.1f} s; fit error "
+    say(
+        f"wrote {args.out}: {result.env.num_lobes} lobes in {result.seconds:.1f} s; fit error "
         f"(solid-angle weighted, {result.settings['eval_height']} rows): relative L1 {e['rel_l1']:.3f}, "
         f"relative RMSE {e['rel_rmse']:.3f}, log RMSE {e['log_rmse']:.3f}, energy {e['energy']:+.3f} "
-        f"(at the fit's {result.settings['height']} rows: relative L1 {e['fit']['rel_l1']:.3f})")
+        f"(at the fit's {result.settings['height']} rows: relative L1 {e['fit']['rel_l1']:.3f})"
+    )
     if args.json:
         emit_json({"out": str(args.out), **result.to_json()})
     return 0

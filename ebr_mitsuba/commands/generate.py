@@ -45,10 +45,18 @@ def add_arguments(parser) -> None:
     parser.add_argument("--count", type=int, default=None, help="number of samples (default: dataset.count)")
     parser.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
     parser.add_argument("--resume", action="store_true", help="complete an interrupted data set")
-    parser.add_argument("--ray", default=None, metavar="ADDRESS",
-                        help="run on a Ray cluster: ADDRESS, auto, or local (needs ebr-mitsuba[ray])")
-    parser.add_argument("--shard-size", type=int, default=DEFAULT_SHARD_SIZE,
-                        help=f"samples per Ray task (default {DEFAULT_SHARD_SIZE})")
+    parser.add_argument(
+        "--ray",
+        default=None,
+        metavar="ADDRESS",
+        help="run on a Ray cluster: ADDRESS, auto, or local (needs ebr-mitsuba[ray])",
+    )
+    parser.add_argument(
+        "--shard-size",
+        type=int,
+        default=DEFAULT_SHARD_SIZE,
+        help=f"samples per Ray task (default {DEFAULT_SHARD_SIZE})",
+    )
     parser.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
 
 
@@ -62,12 +70,22 @@ def run(args) -> int:
         config = config.with_count(args.count)
     # SIGTERM stops the workers and removes half-written files
     with sigterm_as_exit("ebr generate: terminated (SIGTERM); complete samples are kept: --resume finishes"):
-        summary = generate(config, args.out, workers=args.workers, resume=args.resume, ray=args.ray,
-                           shard_size=args.shard_size, progress=True, say=say)
+        summary = generate(
+            config,
+            args.out,
+            workers=args.workers,
+            resume=args.resume,
+            ray=args.ray,
+            shard_size=args.shard_size,
+            progress=True,
+            say=say,
+        )
     rate = summary.samples_per_second
-    say(f"wrote {summary.out}: {summary.count} samples ({summary.generated} generated, {summary.skipped} "
+    say(
+        f"wrote {summary.out}: {summary.count} samples ({summary.generated} generated, {summary.skipped} "
         f"already there) in {summary.seconds:.1f} s, {rate:.3g} samples/s on {summary.workers} "
-        f"{summary.backend} worker(s) ({rate / max(summary.workers, 1):.3g} per worker)")
+        f"{summary.backend} worker(s) ({rate / max(summary.workers, 1):.3g} per worker)"
+    )
     if args.json:
         emit_json(summary.to_json())
     return 0

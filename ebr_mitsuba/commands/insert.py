@@ -66,31 +66,61 @@ HELP = "render a virtual object on an estimate under its lighting (and against t
 
 def add_arguments(parser) -> None:
     # Numbers are read as text and checked in run(): a bad one is one line, exit 2.
-    parser.add_argument("estimate", metavar="ESTIMATE_DIR",
-                        help="output directory of `ebr estimate` (or of `ebr capture`)")
+    parser.add_argument(
+        "estimate", metavar="ESTIMATE_DIR", help="output directory of `ebr estimate` (or of `ebr capture`)"
+    )
     parser.add_argument("--out", required=True, metavar="IMG", help="output image (.exr or .png)")
-    parser.add_argument("--object", default=DEFAULT_OBJECT, metavar="O",
-                        help=f"sphere, cube, none or a .obj/.ply file [{DEFAULT_OBJECT}]")
-    parser.add_argument("--material", default=DEFAULT_MATERIAL, metavar="M",
-                        help=f"one of {', '.join(MATERIALS)} [{DEFAULT_MATERIAL}]")
-    parser.add_argument("--truth", metavar="CAPTURE_DIR",
-                        help="`ebr capture` directory: also render the truth and report the RMSE")
-    parser.add_argument("--spp", default=str(DEFAULT_SPP), metavar="N",
-                        help=f"samples per pixel [{DEFAULT_SPP}]")
-    parser.add_argument("--res", default=None, metavar="N",
-                        help=f"image size [the maps' resolution, at most {DEFAULT_MAX_RES}]")
-    parser.add_argument("--object-scale", default=None, metavar="F",
-                        help=f"object width / sample width, in (0, 1] [{DEFAULT_SCALE:.3g}]")
-    parser.add_argument("--position", default="0,0", metavar="X,Y",
-                        help="object centre on the sample, in [-1, 1]² [0,0]")
-    parser.add_argument("--elevation", default=f"{DEFAULT_ELEVATION:g}", metavar="DEG",
-                        help=f"camera elevation in degrees, 90: the estimate's camera "
-                        f"[{DEFAULT_ELEVATION:g}]")
-    parser.add_argument("--seed", default=str(DEFAULT_SEED), metavar="S",
-                        help=f"sampler seed [{DEFAULT_SEED}]")
+    parser.add_argument(
+        "--object",
+        default=DEFAULT_OBJECT,
+        metavar="O",
+        help=f"sphere, cube, none or a .obj/.ply file [{DEFAULT_OBJECT}]",
+    )
+    parser.add_argument(
+        "--material",
+        default=DEFAULT_MATERIAL,
+        metavar="M",
+        help=f"one of {', '.join(MATERIALS)} [{DEFAULT_MATERIAL}]",
+    )
+    parser.add_argument(
+        "--truth",
+        metavar="CAPTURE_DIR",
+        help="`ebr capture` directory: also render the truth and report the RMSE",
+    )
+    parser.add_argument(
+        "--spp", default=str(DEFAULT_SPP), metavar="N", help=f"samples per pixel [{DEFAULT_SPP}]"
+    )
+    parser.add_argument(
+        "--res",
+        default=None,
+        metavar="N",
+        help=f"image size [the maps' resolution, at most {DEFAULT_MAX_RES}]",
+    )
+    parser.add_argument(
+        "--object-scale",
+        default=None,
+        metavar="F",
+        help=f"object width / sample width, in (0, 1] [{DEFAULT_SCALE:.3g}]",
+    )
+    parser.add_argument(
+        "--position", default="0,0", metavar="X,Y", help="object centre on the sample, in [-1, 1]² [0,0]"
+    )
+    parser.add_argument(
+        "--elevation",
+        default=f"{DEFAULT_ELEVATION:g}",
+        metavar="DEG",
+        help=f"camera elevation in degrees, 90: the estimate's camera [{DEFAULT_ELEVATION:g}]",
+    )
+    parser.add_argument(
+        "--seed", default=str(DEFAULT_SEED), metavar="S", help=f"sampler seed [{DEFAULT_SEED}]"
+    )
     parser.add_argument("--truth-seed", default=None, metavar="S", help="seed of the truth render [--seed]")
-    parser.add_argument("--mesh-up", default=DEFAULT_MESH_UP, metavar="A",
-                        help=f"up axis of a mesh file, y or z [{DEFAULT_MESH_UP}]")
+    parser.add_argument(
+        "--mesh-up",
+        default=DEFAULT_MESH_UP,
+        metavar="A",
+        help=f"up axis of a mesh file, y or z [{DEFAULT_MESH_UP}]",
+    )
     parser.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
 
 
@@ -124,12 +154,18 @@ def config_from_args(args):
     """The :class:`~ebr_mitsuba.insert.InsertConfig` of the parsed options (InputError if bad)."""
     from ..insert import InsertConfig
 
-    return InsertConfig(object=args.object, material=args.material, spp=_int(args.spp, "--spp"),
-                        res=_int(args.res, "--res"), scale=DEFAULT_SCALE if args.object_scale is None
-                        else _float(args.object_scale, "--object-scale"),
-                        position=_position(args.position), elevation=_float(args.elevation, "--elevation"),
-                        seed=_int(args.seed, "--seed"), truth_seed=_int(args.truth_seed, "--truth-seed"),
-                        mesh_up=args.mesh_up)
+    return InsertConfig(
+        object=args.object,
+        material=args.material,
+        spp=_int(args.spp, "--spp"),
+        res=_int(args.res, "--res"),
+        scale=DEFAULT_SCALE if args.object_scale is None else _float(args.object_scale, "--object-scale"),
+        position=_position(args.position),
+        elevation=_float(args.elevation, "--elevation"),
+        seed=_int(args.seed, "--seed"),
+        truth_seed=_int(args.truth_seed, "--truth-seed"),
+        mesh_up=args.mesh_up,
+    )
 
 
 def run(args) -> int:
@@ -141,11 +177,15 @@ def run(args) -> int:
         emit_json(summary)
     else:
         res = summary["resolution"]
-        msg = (f"wrote {summary['out']} ({cfg.object}, {cfg.material}, {res[1]}x{res[0]}, {cfg.spp} spp, "
-               f"{summary['seconds']:.1f} s)")
+        msg = (
+            f"wrote {summary['out']} ({cfg.object}, {cfg.material}, {res[1]}x{res[0]}, {cfg.spp} spp, "
+            f"{summary['seconds']:.1f} s)"
+        )
         if "rmse" in summary:
-            msg += (f"; against the truth: RMSE {summary['rmse']:.5f} (relative {summary['rel_rmse']:.3f}); "
-                    f"also wrote {', '.join(summary['files'][1:])}")
+            msg += (
+                f"; against the truth: RMSE {summary['rmse']:.5f} (relative {summary['rel_rmse']:.3f}); "
+                f"also wrote {', '.join(summary['files'][1:])}"
+            )
         say(msg)
         for warning in summary.get("warnings", []):
             say(f"warning: {warning}")

@@ -42,11 +42,18 @@ _KEY = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 def add_arguments(parser) -> None:
     parser.add_argument("scene", metavar="SCENE.xml", help="Mitsuba XML scene file or bundled scene name")
     parser.add_argument("--out", required=True, metavar="IMG.exr", help="output image (.exr)")
-    parser.add_argument("--spp", type=int, default=None,
-                        help="samples per pixel (default: the scene's sampler setting)")
+    parser.add_argument(
+        "--spp", type=int, default=None, help="samples per pixel (default: the scene's sampler setting)"
+    )
     parser.add_argument("--seed", type=int, default=0, help="sampler seed (default 0)")
-    parser.add_argument("-D", dest="defines", action="append", default=[], metavar="key=value",
-                        help="set the scene parameter $key (repeatable)")
+    parser.add_argument(
+        "-D",
+        dest="defines",
+        action="append",
+        default=[],
+        metavar="key=value",
+        help="set the scene parameter $key (repeatable)",
+    )
     parser.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
 
 
@@ -57,8 +64,9 @@ def parse_defines(defines: list[str]) -> dict[str, str]:
         key, sep, value = item.partition("=")
         key = key.strip()
         if not sep or not _KEY.match(key):
-            raise InputError(f"-D {item!r}: write -D name=value with a parameter name of letters, "
-                             f"digits and underscores")
+            raise InputError(
+                f"-D {item!r}: write -D name=value with a parameter name of letters, digits and underscores"
+            )
         if key in params:
             raise InputError(f"-D {key}: given twice; give each parameter once")
         params[key] = value.strip()
@@ -92,8 +100,14 @@ def run(args) -> int:
         image = image[..., :3]
     write_exr(out, image)  # atomic
     seconds = time.perf_counter() - t0
-    summary = {"out": str(out), "scene": str(path), "seconds": round(seconds, 3), "spp": spp,
-               "resolution": [int(image.shape[0]), int(image.shape[1])], "variant": mi.variant()}
+    summary = {
+        "out": str(out),
+        "scene": str(path),
+        "seconds": round(seconds, 3),
+        "spp": spp,
+        "resolution": [int(image.shape[0]), int(image.shape[1])],
+        "variant": mi.variant(),
+    }
     if args.json:
         emit_json(summary)
     else:

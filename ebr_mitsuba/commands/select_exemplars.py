@@ -61,17 +61,36 @@ def add_arguments(p) -> None:
     from ..extract.select import SelectConfig
 
     d = SelectConfig()
-    p.add_argument("--env", default=None, metavar="ENV",
-                   help="SG environment: env.json or procedural:SEED (required without --point-light)")
-    p.add_argument("--image", required=True, type=Path, metavar="IMG",
-                   help="no-flash image (or flash-only image with --point-light)")
+    p.add_argument(
+        "--env",
+        default=None,
+        metavar="ENV",
+        help="SG environment: env.json or procedural:SEED (required without --point-light)",
+    )
+    p.add_argument(
+        "--image",
+        required=True,
+        type=Path,
+        metavar="IMG",
+        help="no-flash image (or flash-only image with --point-light)",
+    )
     p.add_argument("--point-light", action="store_true", help="select point-light exemplars")
-    p.add_argument("--coarse", default=",".join(f"{r:g}" for r in d.coarse),
-                   help="coarse roughness grid (default %(default)s)")
-    p.add_argument("--anchors", default=",".join(f"{r:g}" for r in d.anchors),
-                   help="fixed low,high exemplars (default %(default)s)")
-    p.add_argument("--mode", choices=("sg", "quadrature"), default=d.env_mode,
-                   help="environment term of the exemplar renders (default %(default)s)")
+    p.add_argument(
+        "--coarse",
+        default=",".join(f"{r:g}" for r in d.coarse),
+        help="coarse roughness grid (default %(default)s)",
+    )
+    p.add_argument(
+        "--anchors",
+        default=",".join(f"{r:g}" for r in d.anchors),
+        help="fixed low,high exemplars (default %(default)s)",
+    )
+    p.add_argument(
+        "--mode",
+        choices=("sg", "quadrature"),
+        default=d.env_mode,
+        help="environment term of the exemplar renders (default %(default)s)",
+    )
     p.add_argument("--spp", type=int, default=d.env_spp, help="quadrature directions (default %(default)s)")
     p.add_argument("--out", type=Path, default=None, metavar="DIR", help="also write the selected exemplars")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
@@ -86,8 +105,10 @@ def _load_env(spec: str | None, point_light: bool):
 
     source = parse_env(spec)
     if source.kind != "sg":
-        raise InputError(f"{spec}: select-exemplars needs an SG environment (env.json or procedural:SEED); "
-                         f"fit the map first with `ebr fit-env`")
+        raise InputError(
+            f"{spec}: select-exemplars needs an SG environment (env.json or procedural:SEED); "
+            f"fit the map first with `ebr fit-env`"
+        )
     return source.sg
 
 
@@ -102,9 +123,12 @@ def run(args) -> int:
     image = read_image(args.image, expect_channels=3)
     env = _load_env(args.env, args.point_light)
     try:
-        config = SelectConfig(coarse=_floats(args.coarse, "--coarse"),
-                              anchors=_floats(args.anchors, "--anchors"), env_mode=args.mode,
-                              env_spp=args.spp)
+        config = SelectConfig(
+            coarse=_floats(args.coarse, "--coarse"),
+            anchors=_floats(args.anchors, "--anchors"),
+            env_mode=args.mode,
+            env_spp=args.spp,
+        )
     except ConfigError as exc:
         raise InputError(str(exc).replace("SelectConfig:", "select-exemplars:")) from None
     selection = select_exemplars(env, image, point_light=args.point_light, config=config)
@@ -121,7 +145,9 @@ def run(args) -> int:
         kind = "point-light" if args.point_light else "environment"
         best = selection.roughness[0]
         values = ", ".join(f"{r:g}" for r in selection.roughness)
-        say(f"{kind} exemplars for {args.image}: roughness {values} "
+        say(
+            f"{kind} exemplars for {args.image}: roughness {values} "
             f"(adaptive {best:g}, SSIM {selection.scores[best]:.4f}; anchors "
-            f"{', '.join(f'{r:g}' for r in selection.roughness[1:])})")
+            f"{', '.join(f'{r:g}' for r in selection.roughness[1:])})"
+        )
     return 0

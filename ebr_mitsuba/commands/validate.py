@@ -34,15 +34,29 @@ HELP = "check plugins and fast renderer against path-traced references"
 def add_arguments(p) -> None:
     from ..validate import DEFAULT_SPP
 
-    p.add_argument("scenes", nargs="*", metavar="CASES.toml|SCENE.xml",
-                   help="case files or validation scenes (default: the bundled cases)")
-    p.add_argument("--case", action="append", default=[], metavar="NAME",
-                   help="run only the named case(s) (repeatable)")
-    p.add_argument("--spp", type=int, default=DEFAULT_SPP,
-                   help=f"samples per point of the path-traced references (default {DEFAULT_SPP})")
+    p.add_argument(
+        "scenes",
+        nargs="*",
+        metavar="CASES.toml|SCENE.xml",
+        help="case files or validation scenes (default: the bundled cases)",
+    )
+    p.add_argument(
+        "--case", action="append", default=[], metavar="NAME", help="run only the named case(s) (repeatable)"
+    )
+    p.add_argument(
+        "--spp",
+        type=int,
+        default=DEFAULT_SPP,
+        help=f"samples per point of the path-traced references (default {DEFAULT_SPP})",
+    )
     p.add_argument("--seed", type=int, default=0, help="seed of the references (default 0)")
-    p.add_argument("--markdown", type=Path, default=None, metavar="FILE.md",
-                   help="also write the result table as Markdown")
+    p.add_argument(
+        "--markdown",
+        type=Path,
+        default=None,
+        metavar="FILE.md",
+        help="also write the result table as Markdown",
+    )
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
 
 
@@ -84,8 +98,10 @@ def markdown_table(result: dict) -> str:
         "|---|---|---:|---:|---:|---:|:---:|",
     ]
     for r in result["cases"]:
-        lines.append(f"| {r['name']} | {r['reference']} | {r['rel_rmse']:.4f} | {r['noise']:.4f} | "
-                     f"{r['budget']:.3f} | {r['tolerance']:.4f} | {'yes' if r['passed'] else '**no**'} |")
+        lines.append(
+            f"| {r['name']} | {r['reference']} | {r['rel_rmse']:.4f} | {r['noise']:.4f} | "
+            f"{r['budget']:.3f} | {r['tolerance']:.4f} | {'yes' if r['passed'] else '**no**'} |"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -102,16 +118,25 @@ def run(args) -> int:
     for case in bar:
         bar.set_postfix_str(case.name)
         rows.extend(run_case(case, spp=args.spp, seed=args.seed))
-    result = {"passed": all(r["passed"] for r in rows), "spp": args.spp, "seed": args.seed,
-              "seconds": time.perf_counter() - t0, "cases": rows}
+    result = {
+        "passed": all(r["passed"] for r in rows),
+        "spp": args.spp,
+        "seed": args.seed,
+        "seconds": time.perf_counter() - t0,
+        "cases": rows,
+    }
     width = max(len(r["name"]) for r in rows)
     for r in rows:
         mark = "ok  " if r["passed"] else "FAIL"
-        say(f"{mark} {r['name']:<{width}}  rel_rmse {r['rel_rmse']:.4f}  (tolerance {r['tolerance']:.4f}: "
-            f"3 x noise {r['noise']:.4f} + budget {r['budget']:.3f})")
+        say(
+            f"{mark} {r['name']:<{width}}  rel_rmse {r['rel_rmse']:.4f}  (tolerance {r['tolerance']:.4f}: "
+            f"3 x noise {r['noise']:.4f} + budget {r['budget']:.3f})"
+        )
     failed = [r["name"] for r in rows if not r["passed"]]
-    say(f"{len(rows) - len(failed)}/{len(rows)} checks passed in {result['seconds']:.1f} s"
-        + (f"; failed: {', '.join(failed)}" if failed else ""))
+    say(
+        f"{len(rows) - len(failed)}/{len(rows)} checks passed in {result['seconds']:.1f} s"
+        + (f"; failed: {', '.join(failed)}" if failed else "")
+    )
     if args.markdown is not None:
         atomic_write_text(args.markdown, markdown_table(result))
         say(f"wrote {args.markdown}")

@@ -35,7 +35,7 @@ def photo_linear(image: np.ndarray, camera: CameraDraw, rng: np.random.Generator
     """
     x = camera_units(image, camera).astype(np.float64)
     noise = rng.standard_normal(x.shape)
-    sigma = np.sqrt(camera.shot_noise * np.maximum(x, 0.0) + camera.read_noise ** 2)
+    sigma = np.sqrt(camera.shot_noise * np.maximum(x, 0.0) + camera.read_noise**2)
     x = x + sigma * noise
     x = np.clip(x, 0.0, 1.0) if camera.clip else np.maximum(x, 0.0)
     return x.astype(np.float32)

@@ -135,6 +135,7 @@ def _f(default, doc: str, **checks):
 
 # -- sections ----------------------------------------------------------------------------------
 
+
 @dataclass(frozen=True)
 class DatasetSection:
     seed: int = _f(0, "data-set seed", minimum=0)
@@ -176,8 +177,12 @@ class CameraSection:
     shot_noise: tuple[float, float] = _f((0.0, 0.005), "shot-noise gain range", nonnegative=True)
     clip: bool = _f(True, "clip photos to [0, 1]")
     quantize: bool = _f(True, "8-bit sRGB photos")
-    meter: float = _f(0.0, "auto exposure: the brightest shot's 99th-percentile channel value (0: off)",
-                      minimum=0.0, maximum=1.0)
+    meter: float = _f(
+        0.0,
+        "auto exposure: the brightest shot's 99th-percentile channel value (0: off)",
+        minimum=0.0,
+        maximum=1.0,
+    )
 
 
 @dataclass(frozen=True)
@@ -193,8 +198,9 @@ class ProceduralMaterials:
 class DirectoryMaterials:
     type: str = _f("directory", "source type")
     weight: float = _f(1.0, "relative probability", positive=True)
-    paths: list[str] = _f([], "material directories or texture sets (glob patterns allowed)", path="dir",
-                          required=True)
+    paths: list[str] = _f(
+        [], "material directories or texture sets (glob patterns allowed)", path="dir", required=True
+    )
     augment: bool = _f(True, "random augmentation")
     blend: float = _f(0.0, "probability of blending two materials", minimum=0.0, maximum=1.0)
     split: str = _f("all", "keep the train or test assets of the fixed test split, or all", choices=SPLITS)
@@ -212,8 +218,9 @@ class ProceduralEnvironments:
 class EquirectEnvironments:
     type: str = _f("equirect", "source type")
     weight: float = _f(1.0, "relative probability", positive=True)
-    paths: list[str] = _f([], "equirectangular .hdr/.exr maps (glob patterns allowed)", path="file",
-                          required=True)
+    paths: list[str] = _f(
+        [], "equirectangular .hdr/.exr maps (glob patterns allowed)", path="file", required=True
+    )
     split: str = _f("all", "keep the train or test assets of the fixed test split, or all", choices=SPLITS)
     levels: list[str] = _f(list(LEVELS), "intensity levels ([]: as in the file)", choices=LEVELS)
     rotate: bool = _f(True, "random rotation about z")
@@ -237,10 +244,19 @@ class NoEnvironment:
 
 
 MATERIAL_TYPES = {"procedural": ProceduralMaterials, "directory": DirectoryMaterials}
-ENVIRONMENT_TYPES = {"procedural": ProceduralEnvironments, "equirect": EquirectEnvironments,
-                     "sg": SGEnvironments, "none": NoEnvironment}
-SECTIONS = {"dataset": DatasetSection, "capture": CaptureSection, "render": RenderSection,
-            "exemplars": ExemplarSection, "camera": CameraSection}
+ENVIRONMENT_TYPES = {
+    "procedural": ProceduralEnvironments,
+    "equirect": EquirectEnvironments,
+    "sg": SGEnvironments,
+    "none": NoEnvironment,
+}
+SECTIONS = {
+    "dataset": DatasetSection,
+    "capture": CaptureSection,
+    "render": RenderSection,
+    "exemplars": ExemplarSection,
+    "camera": CameraSection,
+}
 ARRAYS = {"materials": MATERIAL_TYPES, "environments": ENVIRONMENT_TYPES}
 
 MaterialSpec = ProceduralMaterials | DirectoryMaterials
@@ -297,6 +313,7 @@ def _jsonable(value):
 
 # -- parsing -----------------------------------------------------------------------------------
 
+
 def _type_name(value) -> str:
     if isinstance(value, bool):
         return "a boolean"
@@ -352,8 +369,11 @@ def _resolve_paths(text: str, key: str, source: str, base: Path, kind: str) -> l
     want = {"dir": os.path.isdir, "file": os.path.isfile}.get(kind, os.path.exists)
     found = sorted(p for p in glob.glob(pattern) if want(p))
     if not found:
-        raise _err(source, key, f"pattern {pattern} matches no {'directory' if kind == 'dir' else 'file'}; "
-                                f"fix the pattern")
+        raise _err(
+            source,
+            key,
+            f"pattern {pattern} matches no {'directory' if kind == 'dir' else 'file'}; fix the pattern",
+        )
     return found
 
 
@@ -361,8 +381,12 @@ def _resolve_path(text: str, key: str, source: str, base: Path, kind: str | None
     for match in _VAR.finditer(text):
         name = match.group(1) or match.group(2)
         if name not in os.environ:
-            raise _err(source, key, f"uses ${name}, which is not set; export {name} "
-                                    f"(e.g. EBR_DATA_DIR=/path/to/shared/data) or write the path out")
+            raise _err(
+                source,
+                key,
+                f"uses ${name}, which is not set; export {name} "
+                f"(e.g. EBR_DATA_DIR=/path/to/shared/data) or write the path out",
+            )
     path = Path(os.path.expanduser(os.path.expandvars(text)))
     if not path.is_absolute():
         path = base / path
@@ -432,8 +456,11 @@ def _convert(value, hint, meta: dict, key: str, source: str, base: Path):
                     from ..procedural import FAMILIES
 
                     if item not in FAMILIES:
-                        raise _err(source, k, f"is {item!r}, not a procedural family; use one of "
-                                              f"{', '.join(FAMILIES)}")
+                        raise _err(
+                            source,
+                            k,
+                            f"is {item!r}, not a procedural family; use one of {', '.join(FAMILIES)}",
+                        )
                 if meta.get("path"):
                     out.extend(_resolve_paths(item, k, source, base, meta["path"]))
                     continue
@@ -481,13 +508,18 @@ def _apply_split(table: dict, values: dict, key: str, source: str, base: Path) -
     for path in values["paths"]:
         in_test = test.is_test(path)
         if split == "train" and in_test and path in explicit:
-            raise _err(source, f"{key}.paths", f"names {path}, which is in the fixed test split "
-                                               f"({test.source}); remove it, or set split = \"all\"")
+            raise _err(
+                source,
+                f"{key}.paths",
+                f"names {path}, which is in the fixed test split "
+                f'({test.source}); remove it, or set split = "all"',
+            )
         if in_test == (split == "test"):
             kept.append(path)
     if not kept:
-        raise _err(source, f"{key}.paths", f"keeps no path of the {split!r} split; check the paths and "
-                                           f"EBR_DATA_DIR")
+        raise _err(
+            source, f"{key}.paths", f"keeps no path of the {split!r} split; check the paths and EBR_DATA_DIR"
+        )
     return kept
 
 
@@ -514,8 +546,9 @@ def parse_config(doc: dict, source: str = "<memory>", base_dir: str | Path = "."
     unknown = sorted(set(doc) - set(SECTIONS) - set(ARRAYS))
     if unknown:
         raise _err(source, unknown[0], f"is not a known table; use {', '.join([*SECTIONS, *ARRAYS])}")
-    values = {name: _parse_table(cls, doc.get(name, {}), name, source, base)
-              for name, cls in SECTIONS.items()}
+    values = {
+        name: _parse_table(cls, doc.get(name, {}), name, source, base) for name, cls in SECTIONS.items()
+    }
     for name in ARRAYS:
         if name not in doc:
             hint = ' (type = "none" for a dark environment)' if name == "environments" else ""
@@ -532,8 +565,11 @@ def bundled_configs() -> list[str]:
     import importlib.resources
 
     root = importlib.resources.files("ebr_mitsuba.scenes")
-    return sorted(p.name[:-5] for p in root.iterdir()
-                  if p.name.endswith(".toml") and p.name not in ("validation.toml", "test_split.toml"))
+    return sorted(
+        p.name[:-5]
+        for p in root.iterdir()
+        if p.name.endswith(".toml") and p.name not in ("validation.toml", "test_split.toml")
+    )
 
 
 def resolve_config_path(spec: str | Path) -> Path:
@@ -547,8 +583,10 @@ def resolve_config_path(spec: str | Path) -> Path:
         bundled = importlib.resources.files("ebr_mitsuba.scenes") / f"{path.stem}.toml"
         if bundled.is_file():
             return Path(str(bundled))
-    raise InputError(f"{path}: no such config file; give a TOML file or one of the bundled examples "
-                     f"({', '.join(bundled_configs())})")
+    raise InputError(
+        f"{path}: no such config file; give a TOML file or one of the bundled examples "
+        f"({', '.join(bundled_configs())})"
+    )
 
 
 def load_config(path: str | Path) -> GenerateConfig:
@@ -566,8 +604,11 @@ def load_config(path: str | Path) -> GenerateConfig:
 def schema_table() -> list[tuple[str, str, str, str]]:
     """(key, type, default, meaning) of every table key, for the docs."""
     rows = []
-    groups = list(SECTIONS.items()) + [(f"materials ({t})", c) for t, c in MATERIAL_TYPES.items()] + \
-        [(f"environments ({t})", c) for t, c in ENVIRONMENT_TYPES.items()]
+    groups = (
+        list(SECTIONS.items())
+        + [(f"materials ({t})", c) for t, c in MATERIAL_TYPES.items()]
+        + [(f"environments ({t})", c) for t, c in ENVIRONMENT_TYPES.items()]
+    )
     for name, cls in groups:
         hints = typing.get_type_hints(cls)
         for f in dataclasses.fields(cls):
@@ -575,6 +616,12 @@ def schema_table() -> list[tuple[str, str, str, str]]:
                 default = f.default
             else:
                 default = f.default_factory()
-            rows.append((f"{name}.{f.name}", getattr(hints[f.name], "__name__", str(hints[f.name])),
-                         json.dumps(_jsonable(default)), f.metadata.get("doc", "")))
+            rows.append(
+                (
+                    f"{name}.{f.name}",
+                    getattr(hints[f.name], "__name__", str(hints[f.name])),
+                    json.dumps(_jsonable(default)),
+                    f.metadata.get("doc", ""),
+                )
+            )
     return rows

@@ -56,22 +56,29 @@ class GeneratedDataset(Dataset):
     def __init__(self, root: str | Path, max_lobes: int | None = None, check: bool = True):
         self.root = Path(root)
         self.check = check
-        finish = (f"generate the data set with 'ebr generate ... --out {self.root}' (or finish it with "
-                  f"--resume)")
+        finish = (
+            f"generate the data set with 'ebr generate ... --out {self.root}' (or finish it with --resume)"
+        )
         self.dataset = store.read_doc(self.root / store.DATASET_JSON, store.DATASET_FORMAT, finish)
         self.index = store.read_doc(self.root / store.INDEX_JSON, store.INDEX_FORMAT, finish)
         wanted, have = self.dataset.get("count"), self.index.get("count")
         entries = self.index.get("samples")
         if not isinstance(entries, list) or have != len(entries):
-            raise InputError(f"{self.root / store.INDEX_JSON}: 'count' does not match its samples; "
-                             f"the file is damaged: {finish}")
+            raise InputError(
+                f"{self.root / store.INDEX_JSON}: 'count' does not match its samples; "
+                f"the file is damaged: {finish}"
+            )
         if wanted != have:
-            raise InputError(f"{self.root}: dataset.json asks for {wanted} samples but index.json lists "
-                             f"{have} (an interrupted --count extension); finish it with 'ebr generate ... "
-                             f"--out {self.root} --count {wanted} --resume'")
+            raise InputError(
+                f"{self.root}: dataset.json asks for {wanted} samples but index.json lists "
+                f"{have} (an interrupted --count extension); finish it with 'ebr generate ... "
+                f"--out {self.root} --count {wanted} --resume'"
+            )
         if self.index.get("fingerprint") != self.dataset.get("fingerprint"):
-            raise InputError(f"{self.root / store.INDEX_JSON}: its fingerprint differs from dataset.json's; "
-                             f"the data set is damaged: {finish}")
+            raise InputError(
+                f"{self.root / store.INDEX_JSON}: its fingerprint differs from dataset.json's; "
+                f"the data set is damaged: {finish}"
+            )
         lay = self.dataset["layout"]
         self.shot_names = list(lay["photos"])
         self.flash_only_names = list(lay["flash_only"])
@@ -91,17 +98,20 @@ class GeneratedDataset(Dataset):
         s = store.load_sample(self.root, self.dataset, i)
         env = s["env"]
         if env.num_lobes > self.max_lobes:
-            raise InputError(f"{self.root / store.sample_dirname(i)}: {env.num_lobes} SG lobes > max_lobes "
-                             f"{self.max_lobes}; raise max_lobes")
+            raise InputError(
+                f"{self.root / store.sample_dirname(i)}: {env.num_lobes} SG lobes > max_lobes "
+                f"{self.max_lobes}; raise max_lobes"
+            )
         sg = np.zeros((self.max_lobes, 7), np.float32)
-        sg[:env.num_lobes, :3] = env.axis
-        sg[:env.num_lobes, 3] = env.sharpness
-        sg[:env.num_lobes, 4:] = env.amplitude
+        sg[: env.num_lobes, :3] = env.axis
+        sg[: env.num_lobes, 3] = env.sharpness
+        sg[: env.num_lobes, 4:] = env.amplitude
         mask = np.zeros(self.max_lobes, np.float32)
-        mask[:env.num_lobes] = 1.0
+        mask[: env.num_lobes] = 1.0
         maps = s["maps"]
-        stacked = np.concatenate([maps["normal"], maps["diffuse"], maps["specular"],
-                                  maps["roughness"][..., None]], axis=-1).transpose(2, 0, 1)
+        stacked = np.concatenate(
+            [maps["normal"], maps["diffuse"], maps["specular"], maps["roughness"][..., None]], axis=-1
+        ).transpose(2, 0, 1)
         cam = s["meta"]["camera"]
         return {
             "photos": _chw([s["photos"][n] for n in self.shot_names], self.size),

@@ -62,14 +62,22 @@ class Summary:
         return self.generated / self.seconds if self.seconds > 0 else 0.0
 
     def to_json(self) -> dict:
-        return {"out": self.out, "count": self.count, "generated": self.generated, "skipped": self.skipped,
-                "seconds": round(self.seconds, 3), "workers": self.workers, "backend": self.backend,
-                "samples_per_second": round(self.samples_per_second, 4),
-                "samples_per_second_per_worker": round(self.samples_per_second / max(self.workers, 1), 4),
-                "partials_removed": self.partials_removed}
+        return {
+            "out": self.out,
+            "count": self.count,
+            "generated": self.generated,
+            "skipped": self.skipped,
+            "seconds": round(self.seconds, 3),
+            "workers": self.workers,
+            "backend": self.backend,
+            "samples_per_second": round(self.samples_per_second, 4),
+            "samples_per_second_per_worker": round(self.samples_per_second / max(self.workers, 1), 4),
+            "partials_removed": self.partials_removed,
+        }
 
 
 # -- one sample ------------------------------------------------------------------------------------
+
 
 def renderer_record(config: GenerateConfig) -> dict:
     r = config.render
@@ -108,12 +116,16 @@ def sample_meta(plan: Plan, draw: SampleDraw) -> dict:
         "shots": shots,
         "exemplars": {
             "material": {"diffuse": 0.1, "specular": 0.2, "normal": [0.0, 0.0, 1.0]},
-            "camera": list(near.camera), "fov": near.fov,
+            "camera": list(near.camera),
+            "fov": near.fov,
             "flash_intensity": cfg.capture.flash_intensity,
-            "env": [{"roughness": r, "file": f}
-                    for r, f in zip(cfg.exemplars.env_roughness, lay["env_exemplars"])],
-            "point": [{"roughness": r, "file": f}
-                      for r, f in zip(cfg.exemplars.point_roughness, lay["point_exemplars"])],
+            "env": [
+                {"roughness": r, "file": f} for r, f in zip(cfg.exemplars.env_roughness, lay["env_exemplars"])
+            ],
+            "point": [
+                {"roughness": r, "file": f}
+                for r, f in zip(cfg.exemplars.point_roughness, lay["point_exemplars"])
+            ],
         },
         "maps": lay["maps"],
         "render_seeds": list(draw.render_seeds),
@@ -131,8 +143,10 @@ def metered(config: GenerateConfig, draw, shots: dict[str, np.ndarray]):
     meter = config.camera.meter
     if meter <= 0:
         return draw
-    level = max(float(np.percentile(np.max(np.asarray(v, np.float64), axis=-1), METER_PERCENTILE))
-                for v in shots.values())
+    level = max(
+        float(np.percentile(np.max(np.asarray(v, np.float64), axis=-1), METER_PERCENTILE))
+        for v in shots.values()
+    )
     jitter = draw.camera.exposure / config.camera.exposure
     exposure = float(meter / max(level, 1e-6) * jitter)
     return dataclasses.replace(draw, camera=dataclasses.replace(draw.camera, exposure=exposure))
@@ -150,14 +164,21 @@ def make_sample(plan: Plan, index: int, root: Path) -> Path:
         if not np.all(np.isfinite(image)):
             raise RuntimeError(f"sample {index}: the {name} render has NaN/Inf pixels")
     return store.write_sample(
-        Path(root), index, svbrdf=draw.svbrdf, env_sg=draw.env.sg, photos=photos,
+        Path(root),
+        index,
+        svbrdf=draw.svbrdf,
+        env_sg=draw.env.sg,
+        photos=photos,
         flash_only={k: camera_units(v, cam) for k, v in clean.flash_only.items()},
         env_exemplars=[camera_units(v, cam) for v in clean.env_exemplars],
         point_exemplars=[camera_units(v, cam) for v in clean.point_exemplars],
-        meta=sample_meta(plan, draw), quantize=cam.quantize)
+        meta=sample_meta(plan, draw),
+        quantize=cam.quantize,
+    )
 
 
 # -- the run -----------------------------------------------------------------------------------------
+
 
 def _check_out(root: Path, config: GenerateConfig, resume: bool) -> None:
     if not root.exists() or not any(root.iterdir()):
@@ -166,19 +187,23 @@ def _check_out(root: Path, config: GenerateConfig, resume: bool) -> None:
     if not ds.is_file():
         if resume and {p.name for p in root.iterdir()} <= {"envs"}:
             return  # killed while fitting the maps, before dataset.json: nothing else was written
-        raise InputError(f"{root}: exists, is not empty and holds no {store.DATASET_JSON}; choose a new "
-                         f"--out or remove it")
+        raise InputError(
+            f"{root}: exists, is not empty and holds no {store.DATASET_JSON}; choose a new --out or remove it"
+        )
     if not resume:
-        raise InputError(f"{root}: already holds a data set; pass --resume to complete or extend it, or "
-                         f"choose a new --out")
+        raise InputError(
+            f"{root}: already holds a data set; pass --resume to complete or extend it, or choose a new --out"
+        )
     try:
         old = store.read_json(ds)
     except (json.JSONDecodeError, UnicodeDecodeError, OSError):
         raise InputError(f"{ds}: unreadable; the directory is damaged: choose a new --out") from None
     if old.get("fingerprint") != config.fingerprint():
-        raise InputError(f"{root}: was generated from a different config (fingerprint "
-                         f"{str(old.get('fingerprint'))[:12]} vs {config.fingerprint()[:12]}); --resume "
-                         f"needs the same config (only --count may change): choose a new --out")
+        raise InputError(
+            f"{root}: was generated from a different config (fingerprint "
+            f"{str(old.get('fingerprint'))[:12]} vs {config.fingerprint()[:12]}); --resume "
+            f"needs the same config (only --count may change): choose a new --out"
+        )
 
 
 def dataset_doc(plan: Plan) -> dict:
@@ -211,13 +236,24 @@ def _append_timing(root: Path, summary: Summary) -> None:
         except (json.JSONDecodeError, UnicodeDecodeError, AttributeError):
             runs = []
     runs.append({"finished": time.strftime("%Y-%m-%dT%H:%M:%S"), **summary.to_json()})
-    atomic_write_text(path, json.dumps({"note": "wall times of the runs; not deterministic, not data",
-                                        "runs": runs}, indent=1) + "\n")
+    atomic_write_text(
+        path,
+        json.dumps({"note": "wall times of the runs; not deterministic, not data", "runs": runs}, indent=1)
+        + "\n",
+    )
 
 
-def generate(config: GenerateConfig, out: str | os.PathLike, *, workers: int = 1, resume: bool = False,
-             ray: str | None = None, shard_size: int = DEFAULT_SHARD_SIZE, progress: bool = True,
-             say=None) -> Summary:
+def generate(
+    config: GenerateConfig,
+    out: str | os.PathLike,
+    *,
+    workers: int = 1,
+    resume: bool = False,
+    ray: str | None = None,
+    shard_size: int = DEFAULT_SHARD_SIZE,
+    progress: bool = True,
+    say=None,
+) -> Summary:
     """Generate (or, with ``resume``, complete) the data set of ``config`` in ``out`` (module
     docstring). ``ray``: a Ray address, ``"auto"`` or ``"local"`` (start a local cluster of
     ``workers`` CPUs); ``say``: optional callable for status lines. Returns a :class:`Summary`.
@@ -233,12 +269,31 @@ def generate(config: GenerateConfig, out: str | os.PathLike, *, workers: int = 1
     if root.exists() and not root.is_dir():
         raise InputError(f"{root}: exists and is not a directory; choose another --out")
     with output_lock(root, "ebr generate"):
-        return _generate(config, root, workers=workers, resume=resume, ray=ray, ray_module=ray_module,
-                         shard_size=shard_size, progress=progress, say=say)
+        return _generate(
+            config,
+            root,
+            workers=workers,
+            resume=resume,
+            ray=ray,
+            ray_module=ray_module,
+            shard_size=shard_size,
+            progress=progress,
+            say=say,
+        )
 
 
-def _generate(config: GenerateConfig, root: Path, *, workers: int, resume: bool, ray: str | None,
-              ray_module, shard_size: int, progress: bool, say) -> Summary:
+def _generate(
+    config: GenerateConfig,
+    root: Path,
+    *,
+    workers: int,
+    resume: bool,
+    ray: str | None,
+    ray_module,
+    shard_size: int,
+    progress: bool,
+    say,
+) -> Summary:
     """:func:`generate` once the arguments are checked and ``root`` is locked (``ray_module``:
     Ray, imported, when ``ray`` is given)."""
     from tqdm import tqdm
@@ -261,8 +316,14 @@ def _generate(config: GenerateConfig, root: Path, *, workers: int, resume: bool,
     skipped = count - len(todo)
     n_workers = max(1, min(workers, len(todo))) if todo else 1
     backend = "ray" if ray is not None else ("process" if n_workers == 1 else "pool")
-    bar = tqdm(total=len(todo), desc="generate", unit="sample", disable=None if progress else True,
-               dynamic_ncols=True, smoothing=0.1)
+    bar = tqdm(
+        total=len(todo),
+        desc="generate",
+        unit="sample",
+        disable=None if progress else True,
+        dynamic_ncols=True,
+        smoothing=0.1,
+    )
     t0 = time.perf_counter()
 
     def collect(shard: list[tuple[int, dict]]) -> None:  # a Ray task's samples

@@ -32,13 +32,23 @@ def require_ray():
     try:
         import ray
     except ImportError:
-        raise RuntimeSetupError(f"--ray needs Ray, an optional extra that is not installed: {INSTALL_HINT} "
-                                f"(or run without --ray, with --workers N)") from None
+        raise RuntimeSetupError(
+            f"--ray needs Ray, an optional extra that is not installed: {INSTALL_HINT} "
+            f"(or run without --ray, with --workers N)"
+        ) from None
     return ray
 
 
-def run_ray(ray, address: str, task: Callable, shared: tuple, items: Sequence, shard_size: int,
-            workers: int, collect: Callable[[object], None]) -> None:
+def run_ray(
+    ray,
+    address: str,
+    task: Callable,
+    shared: tuple,
+    items: Sequence,
+    shard_size: int,
+    workers: int,
+    collect: Callable[[object], None],
+) -> None:
     """Run ``task(*shared, shard)`` as one Ray task per shard of ``shard_size`` items; ``collect
     (result)`` in this process as each task finishes. ``ray``: the Ray module (:func:`require_ray`);
     ``address``: ``local`` (a private cluster of ``workers`` CPUs) or a cluster address (``auto``:
@@ -52,12 +62,14 @@ def run_ray(ray, address: str, task: Callable, shared: tuple, items: Sequence, s
             try:
                 ray.init(address=address, log_to_driver=False)
             except (ConnectionError, RuntimeError, ValueError) as exc:
-                raise RuntimeSetupError(f"--ray {address}: cannot connect to a Ray cluster ({exc}); start "
-                                        f"one with 'ray start --head' or use --ray local") from None
+                raise RuntimeSetupError(
+                    f"--ray {address}: cannot connect to a Ray cluster ({exc}); start "
+                    f"one with 'ray start --head' or use --ray local"
+                ) from None
     try:
         remote = ray.remote(num_cpus=1, max_retries=2)(task)
         refs = [ray.put(value) for value in shared]
-        shards = [list(items[i:i + shard_size]) for i in range(0, len(items), shard_size)]
+        shards = [list(items[i : i + shard_size]) for i in range(0, len(items), shard_size)]
         pending = [remote.remote(*refs, shard) for shard in shards]
         while pending:
             done, pending = ray.wait(pending, num_returns=1)

@@ -52,7 +52,7 @@ from .config import (
 )
 
 STREAMS = {"choice": 0, "material": 1, "environment": 2, "camera": 3, "render": 4}
-SEED_BOUND = 2 ** 31
+SEED_BOUND = 2**31
 
 
 def stream_rng(seed: int, index: int, stream: str) -> np.random.Generator:
@@ -67,6 +67,7 @@ def _pick(rng: np.random.Generator, weights) -> int:
 
 
 # -- prepared equirectangular maps ----------------------------------------------------------------
+
 
 @dataclass(frozen=True)
 class PreparedMap:
@@ -85,8 +86,14 @@ class PreparedMap:
     irradiance: float
 
     def record(self) -> dict:
-        return {"path": self.path, "name": self.name, "sha256": self.sha256, "sg_fit": self.fit_file,
-                "lobes": self.fit.num_lobes, "fit_rel_l1": round(float(self.fit_error["rel_l1"]), 6)}
+        return {
+            "path": self.path,
+            "name": self.name,
+            "sha256": self.sha256,
+            "sg_fit": self.fit_file,
+            "lobes": self.fit.num_lobes,
+            "fit_rel_l1": round(float(self.fit_error["rel_l1"]), 6),
+        }
 
 
 @dataclass(frozen=True)
@@ -129,20 +136,28 @@ def prepare_maps(config: GenerateConfig, root: Path, progress=None) -> dict:
                     progress(f"fitting {src.lobes} SG lobes to {Path(path).name}")
                 result = fit_sg(emap, lobes=src.lobes, iterations=src.fit_iterations)
                 result.env.save(target)
-                info = {"map": path, "sha256": sha, "settings": result.settings, "error": result.error,
-                        "initial_error": result.initial_error}
+                info = {
+                    "map": path,
+                    "sha256": sha,
+                    "settings": result.settings,
+                    "error": result.error,
+                    "initial_error": result.initial_error,
+                }
                 atomic_write_text(info_file, json.dumps(info, indent=1, default=float) + "\n")
             fit = SGEnvironment.load(target)
             error = fit_error(fit, resample_equirect(emap, 128))
             irr = float(equirect_irradiance(emap) @ LUMINANCE)
             if not irr > 0:
-                raise InputError(f"{path}: the map gives no light on the sample (zero irradiance from "
-                                 f"above); give a map with a lit upper hemisphere")
+                raise InputError(
+                    f"{path}: the map gives no light on the sample (zero irradiance from "
+                    f"above); give a map with a lit upper hemisphere"
+                )
             out[path] = PreparedMap(path, Path(path).name, sha, fit, rel, error, irr)
     return out
 
 
 # -- process-wide caches of real assets ----------------------------------------------------------
+
 
 @functools.lru_cache(maxsize=16)
 def _load_map(path: str):
@@ -179,6 +194,7 @@ def equirect_map(path: str):
 
 # -- draws -------------------------------------------------------------------------------------
 
+
 @dataclass(frozen=True)
 class EnvDraw:
     """The ground-truth environment of a sample.
@@ -209,9 +225,15 @@ class CameraDraw:
     noise_seed: int
 
     def record(self) -> dict:
-        return {"exposure": self.exposure, "white_balance": list(self.white_balance),
-                "read_noise": self.read_noise, "shot_noise": self.shot_noise, "clip": self.clip,
-                "quantize": self.quantize, "noise_seed": self.noise_seed}
+        return {
+            "exposure": self.exposure,
+            "white_balance": list(self.white_balance),
+            "read_noise": self.read_noise,
+            "shot_noise": self.shot_noise,
+            "clip": self.clip,
+            "quantize": self.quantize,
+            "noise_seed": self.noise_seed,
+        }
 
 
 @dataclass(frozen=True)
@@ -239,8 +261,9 @@ def draw_sample(plan: Plan, index: int) -> SampleDraw:
     choice = stream_rng(seed, index, "choice")
     m_idx = _pick(choice, [m.weight for m in cfg.materials])
     e_idx = _pick(choice, [e.weight for e in cfg.environments])
-    svbrdf, material = _draw_material(cfg.materials[m_idx], stream_rng(seed, index, "material"),
-                                      cfg.dataset.resolution)
+    svbrdf, material = _draw_material(
+        cfg.materials[m_idx], stream_rng(seed, index, "material"), cfg.dataset.resolution
+    )
     material["source_index"] = m_idx
     env = _draw_env(cfg.environments[e_idx], stream_rng(seed, index, "environment"), plan)
     env.record["source_index"] = e_idx
@@ -280,9 +303,12 @@ def _draw_material(src, rng: np.random.Generator, res: int) -> tuple[SVBRDF, dic
     if src.augment:
         settings = AugmentSettings().replace(blend=src.blend)
         svbrdf = augment(svbrdf, np.random.default_rng(aug_seed), other, settings)
-        record["augment"] = {"seed": aug_seed, "blend": src.blend,
-                             "blend_partner": partner if other is not None else None,
-                             "operations": svbrdf.source}
+        record["augment"] = {
+            "seed": aug_seed,
+            "blend": src.blend,
+            "blend_partner": partner if other is not None else None,
+            "operations": svbrdf.source,
+        }
     if svbrdf.shape != (res, res):
         from ..materials import resample_svbrdf
 
@@ -306,8 +332,17 @@ def _draw_env(src, rng: np.random.Generator, plan: Plan) -> EnvDraw:
         level = src.levels[int(rng.integers(len(src.levels)))]
         eseed = int(rng.integers(SEED_BOUND))
         env = procedural_environment(eseed, kind=kind, intensity=level)
-        return EnvDraw("sg", env, {"type": "procedural", "spec": f"procedural:{eseed}", "kind": kind,
-                                   "level": level, "seed": eseed})
+        return EnvDraw(
+            "sg",
+            env,
+            {
+                "type": "procedural",
+                "spec": f"procedural:{eseed}",
+                "kind": kind,
+                "level": level,
+                "seed": eseed,
+            },
+        )
     path = src.paths[int(rng.integers(len(src.paths)))]
     angle = float(rng.uniform(0.0, 2.0 * math.pi))
     if not src.rotate:
@@ -316,15 +351,21 @@ def _draw_env(src, rng: np.random.Generator, plan: Plan) -> EnvDraw:
         prepared: PreparedMap = plan.maps[path]
         level, scale = _level_scale(rng, src.levels, prepared.irradiance)
         sg = prepared.fit.rotated_z(angle).scaled(scale)
-        record = {"type": "equirect", "map": prepared.record(), "rotation": angle, "scale": scale,
-                  "level": level}
+        record = {
+            "type": "equirect",
+            "map": prepared.record(),
+            "rotation": angle,
+            "scale": scale,
+            "level": level,
+        }
         return EnvDraw("equirect", sg, record, map_path=path, rotation=angle, scale=scale)
     if isinstance(src, SGEnvironments):
         base = _load_sg(path)
         level, scale = _level_scale(rng, src.levels, _sg_irradiance(path) if src.levels else 1.0)
         sg = base.rotated_z(angle).scaled(scale)
-        return EnvDraw("sg", sg, {"type": "sg", "path": path, "rotation": angle, "scale": scale,
-                                  "level": level})
+        return EnvDraw(
+            "sg", sg, {"type": "sg", "path": path, "rotation": angle, "scale": scale, "level": level}
+        )
     raise TypeError(f"unknown environment source {src!r}")  # pragma: no cover
 
 
@@ -335,7 +376,12 @@ def _draw_camera(cfg: GenerateConfig, rng: np.random.Generator) -> CameraDraw:
     read = float(rng.uniform(*cam.read_noise))
     shot = float(rng.uniform(*cam.shot_noise))
     noise_seed = int(rng.integers(SEED_BOUND))
-    return CameraDraw(exposure=float(cam.exposure * 2.0 ** ev),
-                      white_balance=(float(gains[0]), 1.0, float(gains[1])),
-                      read_noise=read, shot_noise=shot, clip=cam.clip, quantize=cam.quantize,
-                      noise_seed=noise_seed)
+    return CameraDraw(
+        exposure=float(cam.exposure * 2.0**ev),
+        white_balance=(float(gains[0]), 1.0, float(gains[1])),
+        read_noise=read,
+        shot_noise=shot,
+        clip=cam.clip,
+        quantize=cam.quantize,
+        noise_seed=noise_seed,
+    )

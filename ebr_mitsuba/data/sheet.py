@@ -29,8 +29,12 @@ def _display(image: np.ndarray, kind: str) -> np.ndarray:
 
 def _columns(dataset: dict, max_photos: int = 2) -> list[tuple[str, str, object]]:
     lay = dataset["layout"]
-    cols = [("normal", "normal", ("maps", "normal")), ("diffuse", "srgb", ("maps", "diffuse")),
-            ("specular", "srgb", ("maps", "specular")), ("roughness", "grey", ("maps", "roughness"))]
+    cols = [
+        ("normal", "normal", ("maps", "normal")),
+        ("diffuse", "srgb", ("maps", "diffuse")),
+        ("specular", "srgb", ("maps", "specular")),
+        ("roughness", "grey", ("maps", "roughness")),
+    ]
     cols += [(name, "srgb", ("photos", name)) for name in list(lay["photos"])[:max_photos]]
     cols += [(f"{name} (flash only)", "srgb", ("flash_only", name)) for name in list(lay["flash_only"])[:1]]
     env_r = dataset["config"]["exemplars"]["env_roughness"]
@@ -40,8 +44,9 @@ def _columns(dataset: dict, max_photos: int = 2) -> list[tuple[str, str, object]
     return cols
 
 
-def contact_sheet(root: str | Path, out: str | Path, samples: int = 16, thumb_inches: float = 0.9,
-                  dpi: int = 110) -> Path:
+def contact_sheet(
+    root: str | Path, out: str | Path, samples: int = 16, thumb_inches: float = 0.9, dpi: int = 110
+) -> Path:
     """Draw the contact sheet of the data set at ``root`` into ``out`` (PNG, ``dpi`` dots per inch,
     thumbnails ``thumb_inches`` wide); returns the path."""
     import matplotlib
@@ -62,8 +67,12 @@ def contact_sheet(root: str | Path, out: str | Path, samples: int = 16, thumb_in
     count = int(index["count"])
     picks = sorted(set(np.linspace(0, count - 1, min(samples, count)).round().astype(int).tolist()))
     cols = _columns(dataset)
-    fig, axes = plt.subplots(len(picks), len(cols), squeeze=False,
-                             figsize=(thumb_inches * len(cols) + 1.6, thumb_inches * len(picks) + 0.4))
+    fig, axes = plt.subplots(
+        len(picks),
+        len(cols),
+        squeeze=False,
+        figsize=(thumb_inches * len(cols) + 1.6, thumb_inches * len(picks) + 0.4),
+    )
     for r, i in enumerate(picks):
         s = store.load_sample(root, dataset, i)
         entry = index["samples"][i]
@@ -71,8 +80,9 @@ def contact_sheet(root: str | Path, out: str | Path, samples: int = 16, thumb_in
             ax = axes[r, c]
             image = s[group][key]
             shown = _display(image, kind)
-            ax.imshow(shown, cmap="gray" if shown.ndim == 2 else None, vmin=0.0, vmax=1.0,
-                      interpolation="nearest")
+            ax.imshow(
+                shown, cmap="gray" if shown.ndim == 2 else None, vmin=0.0, vmax=1.0, interpolation="nearest"
+            )
             ax.set_xticks([])
             ax.set_yticks([])
             if r == 0:

@@ -89,10 +89,15 @@ def load_split(path: str | None = None) -> TestSplit:
         raise ConfigError(f"{source}: not valid TOML ({exc})") from None
     table = doc.get("split")
     if not isinstance(table, dict) or table.get("name") != SPLIT_FORMAT:
-        raise ConfigError(f"{source}: expected a [split] table with name = \"{SPLIT_FORMAT}\"")
+        raise ConfigError(f'{source}: expected a [split] table with name = "{SPLIT_FORMAT}"')
     mats, envs = table.get("materials"), table.get("environments")
-    if not (isinstance(mats, list) and isinstance(envs, list) and mats and envs
-            and all(isinstance(x, str) for x in mats + envs)):
+    if not (
+        isinstance(mats, list)
+        and isinstance(envs, list)
+        and mats
+        and envs
+        and all(isinstance(x, str) for x in mats + envs)
+    ):
         raise ConfigError(f"{source}: [split] needs non-empty string lists 'materials' and 'environments'")
     return TestSplit(tuple(mats), tuple(envs), source)
 
@@ -120,8 +125,9 @@ def _real_assets(split: str, root, folders, keep, what: str, test: tuple[str, ..
         if d.is_dir():
             found += sorted(p for p in d.iterdir() if keep(p))
     if not found:
-        raise InputError(f"{base}: no {what} under {', '.join(folders)}; set EBR_DATA_DIR to the shared "
-                         f"data folder")
+        raise InputError(
+            f"{base}: no {what} under {', '.join(folders)}; set EBR_DATA_DIR to the shared data folder"
+        )
     return _select(found, base, split, test)
 
 
@@ -132,8 +138,14 @@ def real_materials(split: str = "train", root: str | os.PathLike | None = None) 
 
 def real_envmaps(split: str = "train", root: str | os.PathLike | None = None) -> list[str]:
     """Absolute paths of the real HDR maps of ``split`` (sorted; ``root``: the data folder)."""
-    return _real_assets(split, root, ENVMAP_DIRS, lambda p: p.suffix.lower() in ENVMAP_SUFFIXES, "HDR maps",
-                        load_split().environments)
+    return _real_assets(
+        split,
+        root,
+        ENVMAP_DIRS,
+        lambda p: p.suffix.lower() in ENVMAP_SUFFIXES,
+        "HDR maps",
+        load_split().environments,
+    )
 
 
 @functools.lru_cache(maxsize=8)
@@ -159,5 +171,7 @@ def check_training_paths(paths, what: str, source: str, root: str | os.PathLike 
     split = load_split()
     for path in paths:
         if split.is_test(path, root):
-            raise ConfigError(f"{source}: {what} names {path}, which is in the fixed test split "
-                              f"({split.source}); remove it from training (use split = \"train\")")
+            raise ConfigError(
+                f"{source}: {what} names {path}, which is in the fixed test split "
+                f'({split.source}); remove it from training (use split = "train")'
+            )

@@ -42,8 +42,13 @@ class VerifyReport:
         return not self.errors
 
     def to_json(self) -> dict:
-        return {"root": self.root, "ok": self.ok, "samples": self.samples, "errors": self.errors,
-                "notes": self.notes}
+        return {
+            "root": self.root,
+            "ok": self.ok,
+            "samples": self.samples,
+            "errors": self.errors,
+            "notes": self.notes,
+        }
 
 
 def _load_json(path: Path, report: VerifyReport, fmt: str | None = None) -> dict | None:
@@ -71,8 +76,10 @@ def _check_sample(root: Path, entry: dict, i: int, dataset: dict, report: Verify
     rel = store.sample_dirname(i)
     directory = root / rel
     if entry.get("index") != i or entry.get("dir") != rel:
-        report.errors.append(f"{root / store.INDEX_JSON}: entry {i} is {entry.get('index')}/"
-                             f"{entry.get('dir')}, expected {i}/{rel}")
+        report.errors.append(
+            f"{root / store.INDEX_JSON}: entry {i} is {entry.get('index')}/"
+            f"{entry.get('dir')}, expected {i}/{rel}"
+        )
     if not directory.is_dir():
         report.errors.append(f"{directory}: sample directory missing")
         return
@@ -100,15 +107,24 @@ def _check_sample(root: Path, entry: dict, i: int, dataset: dict, report: Verify
             report.errors.append(f"{path}: checksum or size differs from the manifest (corrupted)")
             bad.add(name)
     res = tuple(dataset["resolution"])
-    images = [(f, 3) for f in list(lay["photos"].values()) + list(lay["flash_only"].values())
-              + lay["env_exemplars"] + lay["point_exemplars"]]
+    images = [
+        (f, 3)
+        for f in list(lay["photos"].values())
+        + list(lay["flash_only"].values())
+        + lay["env_exemplars"]
+        + lay["point_exemplars"]
+    ]
     images += [(f, 1 if name == "roughness" else 3) for name, f in lay["maps"].items()]
     for name, channels in images:
         if name in bad or not (directory / name).is_file():
             continue
         try:
-            read_image(directory / name, "srgb" if name.endswith(".png") else "linear",
-                       expect_channels=channels, expect_shape=res)
+            read_image(
+                directory / name,
+                "srgb" if name.endswith(".png") else "linear",
+                expect_channels=channels,
+                expect_shape=res,
+            )
         except EbrError as exc:
             report.errors.append(str(exc))
     if lay["env"] not in bad and (directory / lay["env"]).is_file():
@@ -137,16 +153,19 @@ def verify(root: str | Path, progress: bool = False) -> VerifyReport:
         # the run writes index.json last: this is an interrupted run, not a damaged file
         count = dataset.get("count")
         done = store.count_complete(root, count) if isinstance(count, int) else 0
-        report.errors.append(f"{root / store.INDEX_JSON}: missing: the run was interrupted with {done} of "
-                             f"{count} samples complete; rerun the 'ebr generate ... --out {root}' command "
-                             f"with --resume to finish it")
+        report.errors.append(
+            f"{root / store.INDEX_JSON}: missing: the run was interrupted with {done} of "
+            f"{count} samples complete; rerun the 'ebr generate ... --out {root}' command "
+            f"with --resume to finish it"
+        )
         return report
     index = _load_json(root / store.INDEX_JSON, report, store.INDEX_FORMAT)
     if dataset is None or index is None:
         return report
     if not isinstance(dataset.get("layout"), dict) or not isinstance(dataset.get("resolution"), list):
-        report.errors.append(f"{root / store.DATASET_JSON}: no 'layout' or 'resolution'; regenerate the "
-                             f"data set")
+        report.errors.append(
+            f"{root / store.DATASET_JSON}: no 'layout' or 'resolution'; regenerate the data set"
+        )
         return report
     if index.get("fingerprint") != dataset.get("fingerprint"):
         report.errors.append(f"{root / store.INDEX_JSON}: fingerprint differs from dataset.json's")
@@ -154,18 +173,23 @@ def verify(root: str | Path, progress: bool = False) -> VerifyReport:
         # dataset.json is rewritten when a run starts, index.json when it ends
         count = dataset.get("count")
         done = store.count_complete(root, count) if isinstance(count, int) else 0
-        report.errors.append(f"{root}: dataset.json asks for {count} samples but index.json lists "
-                             f"{index.get('count')}: an interrupted --count extension with {done} of {count} "
-                             f"samples complete; rerun 'ebr generate ... --out {root} --count {count} "
-                             f"--resume' to finish it")
+        report.errors.append(
+            f"{root}: dataset.json asks for {count} samples but index.json lists "
+            f"{index.get('count')}: an interrupted --count extension with {done} of {count} "
+            f"samples complete; rerun 'ebr generate ... --out {root} --count {count} "
+            f"--resume' to finish it"
+        )
     entries = index.get("samples", [])
     count = index.get("count")
     if not isinstance(entries, list) or count != len(entries):
-        report.errors.append(f"{root / store.INDEX_JSON}: 'count' is {count} but it lists "
-                             f"{len(entries) if isinstance(entries, list) else 'no'} samples")
+        report.errors.append(
+            f"{root / store.INDEX_JSON}: 'count' is {count} but it lists "
+            f"{len(entries) if isinstance(entries, list) else 'no'} samples"
+        )
         entries = entries if isinstance(entries, list) else []
-    for i, entry in enumerate(tqdm(entries, desc="verify", unit="sample", disable=None if progress else True,
-                                   leave=False)):
+    for i, entry in enumerate(
+        tqdm(entries, desc="verify", unit="sample", disable=None if progress else True, leave=False)
+    ):
         _check_sample(root, entry if isinstance(entry, dict) else {}, i, dataset, report)
     samples_dir = root / store.SAMPLES
     if samples_dir.is_dir():

@@ -173,8 +173,12 @@ def run_pool(make: MakeSample, plan, root: Path, todo: list[int], workers: int, 
     from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
 
     ctx = mp.get_context("spawn")
-    with ProcessPoolExecutor(workers, mp_context=ctx, initializer=init_pool_worker,
-                             initargs=(plan.variant, make, plan, str(root), os.getpid())) as pool:
+    with ProcessPoolExecutor(
+        workers,
+        mp_context=ctx,
+        initializer=init_pool_worker,
+        initargs=(plan.variant, make, plan, str(root), os.getpid()),
+    ) as pool:
         pending = {pool.submit(make_one, index) for index in todo}
         try:
             while pending:

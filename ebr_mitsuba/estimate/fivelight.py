@@ -143,8 +143,10 @@ def model_path(checkpoint: str | None) -> Path:
     if checkpoint is not None:
         path = Path(checkpoint)
         if not path.is_file():
-            raise InputError(f"--checkpoint {checkpoint}: no such file; give a checkpoint of 'ebr train' "
-                             f"with kind = \"dualloss\"")
+            raise InputError(
+                f"--checkpoint {checkpoint}: no such file; give a checkpoint of 'ebr train' "
+                f'with kind = "dualloss"'
+            )
         return path
     path = shipped_model_path()
     if not path.is_file():
@@ -223,8 +225,10 @@ def _shots_from_capture(meta: dict, where: Path, folder: Path) -> list[LightShot
             )
         position = _vector(rec["flash"], f"{where}: shot {name} light position")
         if position[2] <= 0:
-            raise InputError(f"{where}: shot {name} light position {list(position)} is not above the "
-                             f"sample (z must be > 0)")
+            raise InputError(
+                f"{where}: shot {name} light position {list(position)} is not above the "
+                f"sample (z must be > 0)"
+            )
         camera = _vector(rec.get("camera", [0.0, 0.0, NEAR_DISTANCE]), f"{where}: shot {name} camera")
         fov = float(rec.get("fov", NEAR_FOV))
         intensity = rec.get("flash_intensity")
@@ -233,8 +237,10 @@ def _shots_from_capture(meta: dict, where: Path, folder: Path) -> list[LightShot
             raise InputError(f"{where}: shot {name} flash_intensity {intensity}: give a finite value > 0")
         shot = LightShot(name, str(folder / rec["file"]), position, intensity, camera, fov)
         if not shot.shot(1.0).in_sample_grid():
-            raise InputError(f"{where}: shot {name}'s camera does not frame the sample square; a "
-                             f"five-light estimate needs the near camera of docs/conventions.md")
+            raise InputError(
+                f"{where}: shot {name}'s camera does not frame the sample square; a "
+                f"five-light estimate needs the near camera of docs/conventions.md"
+            )
         shots.append(shot)
     return shots
 
@@ -306,23 +312,27 @@ def _from_files(paths: list[str], warnings: list[str]) -> LightSetup:
         return LightSetup(tuple(_default_shots(paths)), "default five-light geometry")
     meta = read_capture_json(meta_path)
     if meta.get("setup") != SETUP:
-        warnings.append(f"{meta_path} is a '{meta.get('setup')}' capture: ignored, the default five-light "
-                        f"geometry used")
+        warnings.append(
+            f"{meta_path} is a '{meta.get('setup')}' capture: ignored, the default five-light geometry used"
+        )
         return LightSetup(tuple(_default_shots(paths)), "default five-light geometry")
     shots = _shots_from_capture(meta, meta_path, meta_path.parent)
     by_file = {Path(s.path).name: s for s in shots}
     given = {Path(p).name: p for p in paths}
     if len(given) != len(paths):
-        raise InputError(f"--lights: two photos share a file name; {meta_path} names each light's photo by "
-                         f"its file name, so give the five photos of that capture")
+        raise InputError(
+            f"--lights: two photos share a file name; {meta_path} names each light's photo by "
+            f"its file name, so give the five photos of that capture"
+        )
     missing = [name for name in given if name not in by_file]
     if missing:
         raise InputError(
             f"{meta_path}: names no light position for {missing[0]}; give the photos of that capture, "
             f"or move the photos away from it to use the default five-light geometry"
         )
-    ordered = [LightShot(s.name, given[Path(s.path).name], s.position, s.intensity, s.camera, s.fov)
-               for s in shots]
+    ordered = [
+        LightShot(s.name, given[Path(s.path).name], s.position, s.intensity, s.camera, s.fov) for s in shots
+    ]
     if [Path(s.path).name for s in ordered] != list(given):
         warnings.append(f"the photos are used in the light order of {meta_path}, not in the order given")
     return LightSetup(tuple(ordered), str(meta_path))
@@ -387,8 +397,10 @@ def load_photos(setup: LightSetup, saturation_level: float | None, warnings: lis
             saturated |= np.any(img >= level, axis=-1)
     frac = float(saturated.mean())
     if frac > MAX_SATURATED:
-        raise InputError(f"--lights: {frac:.0%} of the pixels are saturated (clipped) in the photos; lower "
-                         f"the exposure and retake")
+        raise InputError(
+            f"--lights: {frac:.0%} of the pixels are saturated (clipped) in the photos; lower "
+            f"the exposure and retake"
+        )
     if frac > WARN_SATURATED:
         warnings.append(f"{frac:.1%} of the pixels are saturated; they are left out of the errors")
     for k, img in images.items():
@@ -422,11 +434,14 @@ def _highlight(setup: LightSetup, photos: LightPhotos, warnings: list[str]) -> d
     hl = highlight_position(photos.images[shot.name])
     pos, r2 = hl["position"], hl["fit_r2"]
     if r2 >= HIGHLIGHT_MIN_R2 and pos is None:
-        warnings.append(f"{shot.name}: no highlight of the light at the camera found; the camera should "
-                        f"face the sample")
+        warnings.append(
+            f"{shot.name}: no highlight of the light at the camera found; the camera should face the sample"
+        )
     elif r2 >= HIGHLIGHT_MIN_R2 and math.hypot(*pos) > HIGHLIGHT_WARN:
-        warnings.append(f"{shot.name}: the highlight of the light at the camera is off centre (x "
-                        f"{pos[0]:+.2f}, y {pos[1]:+.2f} half-widths); face the camera to the sample")
+        warnings.append(
+            f"{shot.name}: the highlight of the light at the camera is off centre (x "
+            f"{pos[0]:+.2f}, y {pos[1]:+.2f} half-widths); face the camera to the sample"
+        )
     return hl
 
 
@@ -456,8 +471,10 @@ def _fit_intensity(maps: SVBRDF, setup: LightSetup, photos: LightPhotos) -> floa
     )
     den = sum(float(np.sum(u[m].astype(np.float64) ** 2)) for u in units)
     if not (den > 0 and num > 0):
-        raise InputError("--lights: the photos show no light from the point lights; check the files, or "
-                         "give --flash-intensity")
+        raise InputError(
+            "--lights: the photos show no light from the point lights; check the files, or "
+            "give --flash-intensity"
+        )
     return num / den
 
 
@@ -504,8 +521,10 @@ def run_fivelight(
     n = photos.size
     work = working_size(n, grid, cfg.max_size)
     if n > work:
-        warnings.append(f"the photos are {n}x{n} pixels: estimating at {work}x{work} (the working size "
-                        f"limit, --max-size {cfg.max_size}); give --max-size {n} for the full size")
+        warnings.append(
+            f"the photos are {n}x{n} pixels: estimating at {work}x{work} (the working size "
+            f"limit, --max-size {cfg.max_size}); give --max-size {n} for the full size"
+        )
         log(f"warning: {warnings[-1]}")
     stage("model", t0)
 

@@ -243,8 +243,9 @@ def _box(a: np.ndarray, r: int) -> np.ndarray:
         pad = [(r + 1, r) if i == axis else (0, 0) for i in range(x.ndim)]
         c = np.cumsum(np.pad(x, pad, mode="edge"), axis=axis, dtype=np.float64)
         n = x.shape[axis]
-        return (np.take(c, np.arange(2 * r + 1, 2 * r + 1 + n), axis=axis)
-                - np.take(c, np.arange(n), axis=axis)) / (2 * r + 1)
+        return (
+            np.take(c, np.arange(2 * r + 1, 2 * r + 1 + n), axis=axis) - np.take(c, np.arange(n), axis=axis)
+        ) / (2 * r + 1)
 
     return along(along(a, 0), 1)
 
@@ -266,7 +267,7 @@ def texture_to_noise(log_lum: np.ndarray) -> float:
     noise's own share; 0 for pure noise or a flat image, ≳ 1 where edges are visible."""
     h, w = log_lum.shape
     p = np.pad(log_lum, 1, mode="edge")
-    lap = sum(k * p[i:i + h, j:j + w] for i, row in enumerate(_LAPLACE) for j, k in enumerate(row))
+    lap = sum(k * p[i : i + h, j : j + w] for i, row in enumerate(_LAPLACE) for j, k in enumerate(row))
     noise = float(np.median(np.abs(lap))) / 0.6745 / 6.0
     smooth = _blur3(_blur3(log_lum))
     detail = float((smooth - _box(smooth, max(2, min(h, w) // 16))).std())
@@ -319,15 +320,23 @@ class ShiftEstimate:
         return self.peak_z >= MIN_PEAK_Z and self.peak_z >= MIN_ALIGNED_RATIO * max(self.aligned_z, 1.0)
 
     def describe(self) -> str:
-        return (f"peak ratio {self.peak_ratio:.2f} (trusted from {MIN_PEAK_RATIO:g}), peak "
-                f"{self.peak_z:.1f}σ vs {self.aligned_z:.1f}σ near no shift, texture-to-noise "
-                f"{self.texture[0]:.2f} / {self.texture[1]:.2f}")
+        return (
+            f"peak ratio {self.peak_ratio:.2f} (trusted from {MIN_PEAK_RATIO:g}), peak "
+            f"{self.peak_z:.1f}σ vs {self.aligned_z:.1f}σ near no shift, texture-to-noise "
+            f"{self.texture[0]:.2f} / {self.texture[1]:.2f}"
+        )
 
     def to_json(self) -> dict:
-        return {"dy": self.dy, "dx": self.dx, "peak_ratio": round(self.peak_ratio, 3),
-                "peak_z": round(self.peak_z, 2), "aligned_z": round(self.aligned_z, 2),
-                "prominence": round(self.prominence, 2),
-                "texture_to_noise": [round(t, 3) for t in self.texture], "confident": self.confident}
+        return {
+            "dy": self.dy,
+            "dx": self.dx,
+            "peak_ratio": round(self.peak_ratio, 3),
+            "peak_z": round(self.peak_z, 2),
+            "aligned_z": round(self.aligned_z, 2),
+            "prominence": round(self.prominence, 2),
+            "texture_to_noise": [round(t, 3) for t in self.texture],
+            "confident": self.confident,
+        }
 
 
 def estimate_shift(a: np.ndarray, b: np.ndarray, limit: float = MIN_SHIFT_LIMIT) -> ShiftEstimate:
@@ -360,8 +369,9 @@ def estimate_shift(a: np.ndarray, b: np.ndarray, limit: float = MIN_SHIFT_LIMIT)
     # smallest shift wins.
     sy_all = np.where(np.arange(size[0]) > size[0] // 2, np.arange(size[0]) - size[0], np.arange(size[0]))
     sx_all = np.where(np.arange(size[1]) > size[1] // 2, np.arange(size[1]) - size[1], np.arange(size[1]))
-    neighbours = np.max([np.roll(corr, (u, v), axis=(0, 1)) for u in (-1, 0, 1) for v in (-1, 0, 1)
-                         if u or v], axis=0)
+    neighbours = np.max(
+        [np.roll(corr, (u, v), axis=(0, 1)) for u in (-1, 0, 1) for v in (-1, 0, 1) if u or v], axis=0
+    )
     cand = np.argwhere((corr >= PEAK_TIE * corr.max()) & (corr >= neighbours))
     dist = np.hypot(sy_all[cand[:, 0]], sx_all[cand[:, 1]])
     i, j = cand[int(np.argmin(dist))]
@@ -381,8 +391,15 @@ def estimate_shift(a: np.ndarray, b: np.ndarray, limit: float = MIN_SHIFT_LIMIT)
     aligned = corr[near & outside]
     aligned_z = (float(aligned.max()) - med) / sigma if aligned.size else 0.0
     prominence = float(corr.max() / (corr.std() + 1e-12))
-    return ShiftEstimate(float(dy * sy), float(dx * sx), float(peak_ratio), (peak - med) / sigma, aligned_z,
-                         prominence, (texture_to_noise(logs[0]), texture_to_noise(logs[1])))
+    return ShiftEstimate(
+        float(dy * sy),
+        float(dx * sx),
+        float(peak_ratio),
+        (peak - med) / sigma,
+        aligned_z,
+        prominence,
+        (texture_to_noise(logs[0]), texture_to_noise(logs[1])),
+    )
 
 
 def highlight_position(flash_only: np.ndarray) -> dict:
@@ -407,8 +424,9 @@ def highlight_position(flash_only: np.ndarray) -> dict:
     return {"position": [float(-coef[1] / (2 * coef[3])), float(-coef[2] / (2 * coef[3]))], "fit_r2": r2}
 
 
-def _check_pair(images, on: str, off: str, max_shift: float, warnings: list[str], paths,
-                exposure: dict | None = None) -> ShiftEstimate:
+def _check_pair(
+    images, on: str, off: str, max_shift: float, warnings: list[str], paths, exposure: dict | None = None
+) -> ShiftEstimate:
     a, b = images[on], images[off]
     mean_on, mean_off = float(luminance(a).mean()), float(luminance(b).mean())
     if mean_on <= mean_off:

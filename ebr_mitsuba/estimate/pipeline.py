@@ -160,8 +160,9 @@ def known_flash_intensity(cfg: EstimateConfig, inputs: Inputs) -> tuple[float | 
     return (float(value), "capture.json") if value else (None, None)
 
 
-def _intensities(cfg: EstimateConfig, inputs: Inputs, maps: SVBRDF, shots: dict[str, Shot],
-                 scale: float = 1.0) -> dict:
+def _intensities(
+    cfg: EstimateConfig, inputs: Inputs, maps: SVBRDF, shots: dict[str, Shot], scale: float = 1.0
+) -> dict:
     """The flash intensities of the shots (in the units of ``inputs``: the photos × ``scale``)."""
     import dataclasses
 
@@ -414,8 +415,11 @@ def run_estimate(
         from .fullres import predict_maps
 
         t0 = t_resample
-        log(f"estimating the lighting at the model grid {grid}x{grid}" if not inputs.flash_only
-            else f"selecting the point-light exemplars at the model grid {grid}x{grid}")
+        log(
+            f"estimating the lighting at the model grid {grid}x{grid}"
+            if not inputs.flash_only
+            else f"selecting the point-light exemplars at the model grid {grid}x{grid}"
+        )
         with _Steps(bar, "lighting") as steps:
             steps(0, 3, "resampling the photos")
             work_inputs = inputs.resampled((work, work))
@@ -451,8 +455,11 @@ def run_estimate(
     if cfg.refine.steps > 0:
         t0 = time.perf_counter()
         budget = "" if cfg.refine.seconds is None else f", at most {cfg.refine.seconds:g} s"
-        log(f"refining: {cfg.refine.steps} steps" + (" (maps + lobes" if cfg.refine.lobes else " (maps")
-            + f", coarse to fine{budget})")
+        log(
+            f"refining: {cfg.refine.steps} steps"
+            + (" (maps + lobes" if cfg.refine.lobes else " (maps")
+            + f", coarse to fine{budget})"
+        )
         with _Steps(bar, "refine") as steps:
             steps(0, cfg.refine.steps, "")
 
@@ -494,8 +501,10 @@ def run_estimate(
         "ensemble": ensemble,
         "render_mode": mode,
         "flash": flash_info,
-        "exposure": {"to_reference": scale,
-                     "source": known_source or "none (the reference exposure assumed)"},
+        "exposure": {
+            "to_reference": scale,
+            "source": known_source or "none (the reference exposure assumed)",
+        },
         "lobes": 0 if final_env is None else final_env.num_lobes,
         "rerender_error": {"network": net_errors, "refined": final_errors if refined else None},
         "refine": None
@@ -539,8 +548,13 @@ def run_estimate(
         # novel lights and the exemplar pictures run here meanwhile.
         jobs = [("maps", outputs.write_maps, (final_maps, tmp / "maps", "ebr estimate"))]
         if refined is not None:
-            jobs.append(("network maps", outputs.write_maps,
-                         (maps, tmp / "maps_network", "ebr estimate (network, before refinement)")))
+            jobs.append(
+                (
+                    "network maps",
+                    outputs.write_maps,
+                    (maps, tmp / "maps_network", "ebr estimate (network, before refinement)"),
+                )
+            )
         jobs.append(("re-renders", outputs.write_shots, (tmp, photos, final_renders)))
         if refined is not None:
             jobs.append(("re-renders before refinement", _write_network_renders, (tmp, net_renders, photos)))

@@ -201,8 +201,10 @@ class RefineResult:
             return None
         planned = sum(lv["steps"] for lv in self.levels)
         at = next((lv["size"] for lv in reversed(self.levels) if lv["run"] > 0), self.maps.shape[0])
-        return (f"stopped by the time budget of {self.budget:g} s after {self.steps_run} of {planned} "
-                f"steps (at {at}x{at})")
+        return (
+            f"stopped by the time budget of {self.budget:g} s after {self.steps_run} of {planned} "
+            f"steps (at {at}x{at})"
+        )
 
     def loss_note(self) -> str | None:
         """``"loss rose from X to Y; kept step K"`` when :attr:`loss_rose`, else None."""
@@ -240,20 +242,31 @@ def render_options(mode: str = "sg", spp: int = 16, irradiance_table: int = 0):
     from ..render import RenderOptions
 
     sg = mode == "sg"
-    return RenderOptions(mode=mode, spp=int(spp), irradiance_table=int(irradiance_table) if sg else 0,
-                         lobe_loop=sg)
+    return RenderOptions(
+        mode=mode, spp=int(spp), irradiance_table=int(irradiance_table) if sg else 0, lobe_loop=sg
+    )
 
 
 def rerender(
-    maps: SVBRDF, env: SGEnvironment | None, shot: Shot, mode: str = "sg", spp: int = 16,
+    maps: SVBRDF,
+    env: SGEnvironment | None,
+    shot: Shot,
+    mode: str = "sg",
+    spp: int = 16,
     irradiance_table: int = 0,
 ) -> np.ndarray:
     """The fast render (H, W, 3) of ``maps`` for ``shot`` (its flash, the environment if lit)."""
     return rerender_shots(maps, env, [shot], mode, spp, irradiance_table)[0]
 
 
-def rerender_shots(maps: SVBRDF, env: SGEnvironment | None, shots: list[Shot], mode: str = "sg",
-                   spp: int = 16, irradiance_table: int = 0) -> list[np.ndarray]:
+def rerender_shots(
+    maps: SVBRDF,
+    env: SGEnvironment | None,
+    shots: list[Shot],
+    mode: str = "sg",
+    spp: int = 16,
+    irradiance_table: int = 0,
+) -> list[np.ndarray]:
     """Fast renders (H, W, 3) of ``maps`` for several shots; shots from one camera share the
     environment term (:func:`ebr_mitsuba.render.render_shots`)."""
     import drjit as dr
@@ -281,7 +294,11 @@ def image_errors(render: np.ndarray, target: np.ndarray, mask: np.ndarray) -> di
 
 
 def rerender_errors(
-    maps: SVBRDF, env: SGEnvironment | None, targets: list[ShotTarget], mode: str = "sg", spp: int = 16,
+    maps: SVBRDF,
+    env: SGEnvironment | None,
+    targets: list[ShotTarget],
+    mode: str = "sg",
+    spp: int = 16,
     irradiance_table: int = 0,
 ) -> tuple[dict, dict[str, np.ndarray]]:
     """Per shot name: {"rmse", "rel_rmse"} and the re-render (H, W, 3); plus ``"mean"`` of both."""
@@ -330,8 +347,12 @@ def _slopes(normal: np.ndarray) -> np.ndarray:
 
 def to_params(maps: SVBRDF) -> dict[str, np.ndarray]:
     """The unconstrained parameters of ``maps`` (module docstring): logits and normal slopes."""
-    return {"diffuse": _logit(maps.diffuse), "specular": _logit(maps.specular),
-            "roughness": _logit(maps.roughness), "normal_xy": _slopes(maps.normal)}
+    return {
+        "diffuse": _logit(maps.diffuse),
+        "specular": _logit(maps.specular),
+        "roughness": _logit(maps.roughness),
+        "normal_xy": _slopes(maps.normal),
+    }
 
 
 def from_params(p: dict[str, np.ndarray], source: str = "refined") -> SVBRDF:
@@ -339,8 +360,13 @@ def from_params(p: dict[str, np.ndarray], source: str = "refined") -> SVBRDF:
     xy = np.asarray(p["normal_xy"], np.float64)
     n = np.concatenate([xy, np.ones(xy.shape[:2] + (1,))], axis=-1)
     n /= np.linalg.norm(n, axis=-1, keepdims=True)
-    return SVBRDF(normal=n.astype(np.float32), diffuse=_sigmoid(p["diffuse"]),
-                  specular=_sigmoid(p["specular"]), roughness=_sigmoid(p["roughness"]), source=source)
+    return SVBRDF(
+        normal=n.astype(np.float32),
+        diffuse=_sigmoid(p["diffuse"]),
+        specular=_sigmoid(p["specular"]),
+        roughness=_sigmoid(p["roughness"]),
+        source=source,
+    )
 
 
 def carry_change(net_coarse: SVBRDF, refined_coarse: SVBRDF, net_fine: SVBRDF) -> SVBRDF:
@@ -489,16 +515,22 @@ def basis_params(maps: SVBRDF, k_count: int, iterations: int = 10) -> dict[str, 
     spec = maps.specular.reshape(-1, 3).astype(np.float64)
     rough = maps.roughness.reshape(-1).astype(np.float64)
     feats = np.stack([spec.mean(axis=1), rough], axis=1)
-    centres = np.stack([np.quantile(feats[:, 0], (np.arange(k_count) + 0.5) / k_count),
-                        np.quantile(rough, (np.arange(k_count) + 0.5) / k_count)], axis=1)
+    centres = np.stack(
+        [
+            np.quantile(feats[:, 0], (np.arange(k_count) + 0.5) / k_count),
+            np.quantile(rough, (np.arange(k_count) + 0.5) / k_count),
+        ],
+        axis=1,
+    )
     label = np.zeros(len(rough), np.int64)
     for _ in range(iterations):
         label = np.argmin(((feats[:, None, :] - centres[None]) ** 2).sum(-1), axis=1)
         for k in range(k_count):
             if np.any(label == k):
                 centres[k] = feats[label == k].mean(axis=0)
-    f0 = np.stack([spec[label == k].mean(axis=0) if np.any(label == k) else spec.mean(axis=0)
-                   for k in range(k_count)])
+    f0 = np.stack(
+        [spec[label == k].mean(axis=0) if np.any(label == k) else spec.mean(axis=0) for k in range(k_count)]
+    )
     r = np.array([rough[label == k].mean() if np.any(label == k) else rough.mean() for k in range(k_count)])
     out = {"basis_specular": _logit(f0.reshape(-1)), "basis_roughness": _logit(r)}
     if k_count > 1:
@@ -540,8 +572,9 @@ class _LevelResult:
 class _Level:
     """One level of the refinement: the objective (module docstring) at one size."""
 
-    def __init__(self, prior: SVBRDF, env: SGEnvironment | None, targets: list[ShotTarget],
-                 config: RefineConfig):
+    def __init__(
+        self, prior: SVBRDF, env: SGEnvironment | None, targets: list[ShotTarget], config: RefineConfig
+    ):
         import drjit as dr
         import mitsuba as mi
 
@@ -620,9 +653,19 @@ class _Level:
         with dr.suspend_grad():
             return float(self.objective(params, params.values)[0])
 
-    def run(self, start: SVBRDF, env: SGEnvironment | None, steps: int, *, offset: int = 0,
-            baseline: float | None = None, deadline: float | None = None, progress=None,
-            total: int = 0, record_start: bool = True) -> _LevelResult:
+    def run(
+        self,
+        start: SVBRDF,
+        env: SGEnvironment | None,
+        steps: int,
+        *,
+        offset: int = 0,
+        baseline: float | None = None,
+        deadline: float | None = None,
+        progress=None,
+        total: int = 0,
+        record_start: bool = True,
+    ) -> _LevelResult:
         """``steps`` Adam steps from ``start``; the best read iterate (or ``start``/its
         ``baseline`` loss when no read is lower). Reads are recorded at ``offset`` + local step."""
         import drjit as dr
@@ -747,8 +790,17 @@ def refine(
             baseline = level.loss_of(maps, env)
             history.append((0, baseline))
         start_of_level = offset
-        result = level.run(start, cur_env, n_steps, offset=offset, baseline=baseline, deadline=deadline,
-                           progress=progress, total=config.steps, record_start=li == 0 or at_full)
+        result = level.run(
+            start,
+            cur_env,
+            n_steps,
+            offset=offset,
+            baseline=baseline,
+            deadline=deadline,
+            progress=progress,
+            total=config.steps,
+            record_start=li == 0 or at_full,
+        )
         history += result.history
         levels[li]["run"] = result.run
         levels[li]["seconds"] = round(time.perf_counter() - t_level, 3)
@@ -766,8 +818,11 @@ def refine(
         base = full_level().loss_of(maps, env)
         at = start_of_level + result.run
         history += [(0, base), (at, value)]
-        result = (_LevelResult(carried, cur_env, [], at, value, result.run, stopped) if value < base
-                  else _LevelResult(maps, env, [], -1, base, result.run, stopped))
+        result = (
+            _LevelResult(carried, cur_env, [], at, value, result.run, stopped)
+            if value < base
+            else _LevelResult(maps, env, [], -1, base, result.run, stopped)
+        )
         kept = result.kept_step
     elif result.kept_step < 0:
         kept = 0
@@ -777,9 +832,20 @@ def refine(
     kept = max(kept, 0)
     history = sorted(dict(history).items()) if len(sizes) > 1 or not at_full else history
     after, renders = rerender_errors(out_maps, out_env, targets, config.mode, config.spp, table)
-    return RefineResult(out_maps, out_env, before, after, time.perf_counter() - t0, history, renders,
-                        kept_step=kept, levels=levels, steps_run=steps_run, stopped=stopped,
-                        budget=config.seconds)
+    return RefineResult(
+        out_maps,
+        out_env,
+        before,
+        after,
+        time.perf_counter() - t0,
+        history,
+        renders,
+        kept_step=kept,
+        levels=levels,
+        steps_run=steps_run,
+        stopped=stopped,
+        budget=config.seconds,
+    )
 
 
 __all__ = [

@@ -129,12 +129,16 @@ def _loss_svg(history: list, width: int = 420, height: int = 140) -> str:
 
     def beside(px, py, anchor, text):  # above the point, or below it when at the top edge
         ty = py - 6 if py - 6 >= top + 4 else py + 14
-        return (f'<text x="{px:.1f}" y="{ty:.1f}" font-size="11" text-anchor="{anchor}">'
-                f"{html.escape(text)}</text>")
+        return (
+            f'<text x="{px:.1f}" y="{ty:.1f}" font-size="11" text-anchor="{anchor}">'
+            f"{html.escape(text)}</text>"
+        )
 
     def tick(level, value):
-        return (f'<text x="{left - 4}" y="{y(level) + 4:.1f}" font-size="10" text-anchor="end" '
-                f'fill="#666">{value:.3g}</text>')
+        return (
+            f'<text x="{left - 4}" y="{y(level) + 4:.1f}" font-size="10" text-anchor="end" '
+            f'fill="#666">{value:.3g}</text>'
+        )
 
     return (
         f'<svg width="{width}" height="{height}" style="border:1px solid #ddd">'
@@ -160,8 +164,10 @@ def render_report(out: Path, summary: dict) -> str:
         f"<h1>ebr estimate — {html.escape(summary['capture'])} capture</h1>",
     ]
     if "lights" in inp:  # five-light: each photo with its light's position
-        shot_rows = [[f"{k} (light at {', '.join(f'{c:g}' for c in inp['lights'][k])})", p]
-                     for k, p in inp["paths"].items()]
+        shot_rows = [
+            [f"{k} (light at {', '.join(f'{c:g}' for c in inp['lights'][k])})", p]
+            for k, p in inp["paths"].items()
+        ]
     else:
         shot_rows = [
             ["flash shot", inp["paths"].get("flash")],
@@ -181,8 +187,12 @@ def render_report(out: Path, summary: dict) -> str:
                 [
                     "working resolution",
                     f"{summary['resolution']}² (model grid {summary['model_grid']}², "
-                    + ("one pass" if summary.get("tiles", 1) == 1
-                       else f"{summary['tiles']} tiles of {summary['tile']}²") + ")",
+                    + (
+                        "one pass"
+                        if summary.get("tiles", 1) == 1
+                        else f"{summary['tiles']} tiles of {summary['tile']}²"
+                    )
+                    + ")",
                 ],
                 ["field of view", f"{inp['fov']:g}°"],
                 [
@@ -191,9 +201,14 @@ def render_report(out: Path, summary: dict) -> str:
                         f"{k}: {v['intensity']:.4g} W/sr ({v['source']})" for k, v in summary["flash"].items()
                     ),
                 ],
-                *([["SG lobes", summary["lobes"]],
-                   ["renderer", f"fast Dr.Jit renderer, environment term '{summary['render_mode']}'"]]
-                  if "lights" not in inp else [["renderer", "fast Dr.Jit renderer, the point lights alone"]]),
+                *(
+                    [
+                        ["SG lobes", summary["lobes"]],
+                        ["renderer", f"fast Dr.Jit renderer, environment term '{summary['render_mode']}'"],
+                    ]
+                    if "lights" not in inp
+                    else [["renderer", "fast Dr.Jit renderer, the point lights alone"]]
+                ),
                 ["total time", f"{summary.get('total_seconds', sum(summary['timings'].values())):.1f} s"],
             ],
         )
@@ -238,8 +253,10 @@ def render_report(out: Path, summary: dict) -> str:
     if summary["capture"] == "flash-only":
         parts.append("<p>Flash-only capture: no environment estimated.</p>")
     elif "lights" in inp:
-        parts.append(f"<p>Five point lights at known positions ({html.escape(str(inp.get('geometry')))}), "
-                     "no environment: nothing to estimate.</p>")
+        parts.append(
+            f"<p>Five point lights at known positions ({html.escape(str(inp.get('geometry')))}), "
+            "no environment: nothing to estimate.</p>"
+        )
     else:
         parts.append(
             _img(out, "env_sphere.png", "upper hemisphere seen from above (+x right, +y up)")

@@ -56,5 +56,11 @@ def resample_maps(maps: SVBRDF, size: int) -> SVBRDF:
     return resample_svbrdf(maps, (size, size))
 
 
-__all__ = ["DEFAULT_GRID", "DEFAULT_MAX_SIZE", "MIN_INPUT_SIZE", "model_grid", "working_size",
-           "resample_maps"]
+__all__ = [
+    "DEFAULT_GRID",
+    "DEFAULT_MAX_SIZE",
+    "MIN_INPUT_SIZE",
+    "model_grid",
+    "working_size",
+    "resample_maps",
+]

@@ -88,8 +88,10 @@ def write_exemplars(
         raise InputError(f"roughness values {list(roughness)} repeat; give each value once")
     shapes = {np.shape(im) for im in images}
     if len(images) != len(roughness) or len(shapes) != 1 or len(next(iter(shapes))) != 3:
-        raise InputError(f"write_exemplars: give one (H, W, 3) image per roughness value, all of one size "
-                         f"(got {len(images)} images of shapes {sorted(shapes)} for {len(roughness)} values)")
+        raise InputError(
+            f"write_exemplars: give one (H, W, 3) image per roughness value, all of one size "
+            f"(got {len(images)} images of shapes {sorted(shapes)} for {len(roughness)} values)"
+        )
     h, w = images[0].shape[:2]
     meta = {
         "format": FORMAT,

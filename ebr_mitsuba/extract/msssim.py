@@ -116,7 +116,7 @@ def _band(n: int) -> np.ndarray:
     """(n − 10, n) matrix of the 'valid' Gaussian filter along one axis."""
     m = np.zeros((n - _TAPS.size + 1, n))
     for i in range(m.shape[0]):
-        m[i, i:i + _TAPS.size] = _TAPS
+        m[i, i : i + _TAPS.size] = _TAPS
     return m
 
 

@@ -25,8 +25,9 @@ def dataclass_from_dict(cls, data: Mapping[str, Any], where: str, nested=None):
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - names)
     if unknown:
-        raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)}; "
-                          f"allowed: {', '.join(sorted(names))}")
+        raise ConfigError(
+            f"{where}: unknown key(s) {', '.join(unknown)}; allowed: {', '.join(sorted(names))}"
+        )
     hints = typing.get_type_hints(cls)
     kwargs = {}
     for key, value in data.items():

@@ -83,8 +83,9 @@ class DualLossConfig:
     def __post_init__(self):
         object.__setattr__(self, "merge_features", tuple(self.merge_features))
         if self.output not in OUTPUT_MODES:
-            raise ConfigError(f"DualLossConfig: unknown output {self.output!r}; use one of "
-                              f"{', '.join(OUTPUT_MODES)}")
+            raise ConfigError(
+                f"DualLossConfig: unknown output {self.output!r}; use one of {', '.join(OUTPUT_MODES)}"
+            )
         if self.num_lights < 1 or self.levels < 1 or not self.width_scale > 0:
             raise ConfigError("DualLossConfig: num_lights and levels must be ≥ 1 and width_scale > 0")
         if not 0.0 <= self.dropout < 1.0 or self.dropout_layers < 0:
@@ -113,7 +114,7 @@ class DualLossNet(nn.Module):
             merge += [nn.Conv3d(ch, out, 3, stride=(2, 1, 1), padding=1), nn.LeakyReLU(0.2)]
             ch, depth = out, (depth - 1) // 2 + 1
         self.merge = nn.Sequential(*merge)
-        feats = [c.features(min(64 * 2 ** i, 512)) for i in range(c.levels)]
+        feats = [c.features(min(64 * 2**i, 512)) for i in range(c.levels)]
         self.down = nn.ModuleList()
         in_ch = ch * depth
         for i, f in enumerate(feats):
@@ -126,23 +127,28 @@ class DualLossNet(nn.Module):
         self.up = nn.ModuleList()
         for i in range(c.levels - 1, 0, -1):  # coarse → fine; output at level i − 1 resolution
             dec_in = feats[i] if i == c.levels - 1 else 2 * feats[i]
-            layers = [nn.LeakyReLU(0.2), nn.ConvTranspose2d(dec_in, feats[i - 1], 4, stride=2, padding=1,
-                                                            bias=False), nn.BatchNorm2d(feats[i - 1])]
+            layers = [
+                nn.LeakyReLU(0.2),
+                nn.ConvTranspose2d(dec_in, feats[i - 1], 4, stride=2, padding=1, bias=False),
+                nn.BatchNorm2d(feats[i - 1]),
+            ]
             if (c.levels - 1 - i) < c.dropout_layers and c.dropout > 0:
                 layers.append(nn.Dropout(c.dropout))
             self.up.append(nn.Sequential(*layers))
         last_in = feats[0] if c.levels == 1 else 2 * feats[0]
-        self.out = nn.Sequential(nn.LeakyReLU(0.2),
-                                 nn.ConvTranspose2d(last_in, OUTPUT_MODES[c.output], 4, stride=2, padding=1))
+        self.out = nn.Sequential(
+            nn.LeakyReLU(0.2), nn.ConvTranspose2d(last_in, OUTPUT_MODES[c.output], 4, stride=2, padding=1)
+        )
 
     def forward(self, images: torch.Tensor) -> Maps:
         c = self.config
         if images.ndim != 5 or images.shape[1] != c.num_lights or images.shape[2] != 3:
-            raise InputError(f"DualLossNet: input has shape {tuple(images.shape)}; expected "
-                             f"(B, {c.num_lights}, 3, H, W)")
+            raise InputError(
+                f"DualLossNet: input has shape {tuple(images.shape)}; expected (B, {c.num_lights}, 3, H, W)"
+            )
         b, _, _, height, width = images.shape
         x = log_input(images, c.log_eps).transpose(1, 2)  # (B, 3, L, H, W)
-        multiple = 2 ** c.levels
+        multiple = 2**c.levels
         pad_h, pad_w = (-height) % multiple, (-width) % multiple
         if pad_h or pad_w:
             x = F.pad(x, (0, pad_w, 0, pad_h, 0, 0), mode="replicate")

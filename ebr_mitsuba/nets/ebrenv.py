@@ -58,8 +58,7 @@ def _check_image(name: str, x: torch.Tensor, channels: int, like: torch.Tensor |
     if x.ndim != 4 or x.shape[1] != channels:
         raise InputError(f"{name} has shape {tuple(x.shape)}; expected (B, {channels}, H, W)")
     if like is not None and (x.shape[0] != like.shape[0] or x.shape[2:] != like.shape[2:]):
-        raise InputError(f"{name} has shape {tuple(x.shape)}; batch and H×W must match "
-                         f"{tuple(like.shape)}")
+        raise InputError(f"{name} has shape {tuple(x.shape)}; batch and H×W must match {tuple(like.shape)}")
 
 
 def _check_stack(name: str, x: torch.Tensor, count: int, like: torch.Tensor) -> torch.Tensor:
@@ -92,8 +91,9 @@ class LightingNetConfig:
 
     def __post_init__(self):
         if self.capture not in CAPTURE_MODES:
-            raise ConfigError(f"LightingNetConfig: unknown capture {self.capture!r}; use one of "
-                              f"{', '.join(CAPTURE_MODES)}")
+            raise ConfigError(
+                f"LightingNetConfig: unknown capture {self.capture!r}; use one of {', '.join(CAPTURE_MODES)}"
+            )
         if self.num_exemplars < 1:
             raise ConfigError(f"LightingNetConfig: num_exemplars must be ≥ 1, got {self.num_exemplars}")
         if not self.log_eps > 0:
@@ -138,7 +138,7 @@ class LightingNet(nn.Module):
         b, _, h, w = raw.shape
         log_all = soft_clamp_log(raw)
         log_ex = log_all[:, : 3 * c.num_exemplars].reshape(b, c.num_exemplars, 3, h, w)
-        log_fo = log_all[:, 3 * c.num_exemplars:]
+        log_fo = log_all[:, 3 * c.num_exemplars :]
         return LightingOutput(torch.exp(log_ex), torch.exp(log_fo), log_ex, log_fo)
 
 
@@ -218,14 +218,22 @@ class Cascade(nn.Module):
             self.diffuse_net = self.specular_net = None
             self.joint_net = NAFNet(6 + env_ch + point_ch, NUM_MAP_CHANNELS, c.size)
         photo_ch = 3 * c.num_photos
-        self.refinement_net = (NAFNet(NUM_MAP_CHANNELS + 2 * photo_ch, NUM_MAP_CHANNELS, c.size)
-                               if c.use_refinement else None)
+        self.refinement_net = (
+            NAFNet(NUM_MAP_CHANNELS + 2 * photo_ch, NUM_MAP_CHANNELS, c.size) if c.use_refinement else None
+        )
 
-    def forward(self, noflash: torch.Tensor, flash_only: torch.Tensor,
-                env_exemplars: torch.Tensor | None = None, point_exemplars: torch.Tensor | None = None,
-                *, render_diffuse_flash: RenderDiffuseFlash | None = None,
-                photos: torch.Tensor | None = None,
-                render_photos: RenderPhotos | None = None, refine: bool = True) -> CascadeOutput:
+    def forward(
+        self,
+        noflash: torch.Tensor,
+        flash_only: torch.Tensor,
+        env_exemplars: torch.Tensor | None = None,
+        point_exemplars: torch.Tensor | None = None,
+        *,
+        render_diffuse_flash: RenderDiffuseFlash | None = None,
+        photos: torch.Tensor | None = None,
+        render_photos: RenderPhotos | None = None,
+        refine: bool = True,
+    ) -> CascadeOutput:
         """Estimate the maps.
 
         ========================  ====================  =============================================
@@ -259,15 +267,19 @@ class Cascade(nn.Module):
         specular_image = None
         if c.use_cascade:
             if render_diffuse_flash is None:
-                raise InputError("Cascade: render_diffuse_flash is required with use_cascade=True; pass "
-                                 "ebr_mitsuba.nets.torch_brdf.near_flash_diffuse() or a Dr.Jit renderer")
+                raise InputError(
+                    "Cascade: render_diffuse_flash is required with use_cascade=True; pass "
+                    "ebr_mitsuba.nets.torch_brdf.near_flash_diffuse() or a Dr.Jit renderer"
+                )
             diffuse_in = torch.cat([log_nf, log_fo] + ([env_in] if env_in is not None else []), dim=1)
             raw_nd = self.diffuse_net(diffuse_in)
             diffuse_render = render_diffuse_flash(unit_normal(raw_nd[:, :3]), unit_interval(raw_nd[:, 3:]))
             _check_image("render_diffuse_flash output", diffuse_render, 3, noflash)
             specular_image = flash_only - diffuse_render
-            specular_in = torch.cat([signed_log(specular_image, eps), log_fo]
-                                    + ([point_in] if point_in is not None else []), dim=1)
+            specular_in = torch.cat(
+                [signed_log(specular_image, eps), log_fo] + ([point_in] if point_in is not None else []),
+                dim=1,
+            )
             raw_sr = self.specular_net(specular_in)
             raw = torch.cat([raw_nd, raw_sr], dim=1)
         else:

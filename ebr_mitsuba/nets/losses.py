@@ -27,9 +27,20 @@ from .maps import MAP_LAYOUT, Maps
 from .transforms import log_input, log_ratio, signed_log
 
 __all__ = [
-    "MapWeights", "parameter_l1", "ViewLightPairs", "sample_view_light_pairs", "rendering_loss",
-    "masked_angular_l1", "masked_mse", "least_squares_scale", "scale_invariant_mse",
-    "scale_invariant_log_mse", "entropy_regulariser", "log_input", "log_ratio", "signed_log",
+    "MapWeights",
+    "parameter_l1",
+    "ViewLightPairs",
+    "sample_view_light_pairs",
+    "rendering_loss",
+    "masked_angular_l1",
+    "masked_mse",
+    "least_squares_scale",
+    "scale_invariant_mse",
+    "scale_invariant_log_mse",
+    "entropy_regulariser",
+    "log_input",
+    "log_ratio",
+    "signed_log",
     "RENDER_DISTANCE",
 ]
 
@@ -98,9 +109,15 @@ def _cosine_hemisphere(shape, generator, dtype, device) -> torch.Tensor:
     return torch.stack([r * torch.cos(phi), r * torch.sin(phi), z], dim=-1)
 
 
-def sample_view_light_pairs(batch: int, generator: torch.Generator, count: int = 10, highlights: int = 5,
-                            distance: float = RENDER_DISTANCE, dtype=torch.float32,
-                            device=None) -> ViewLightPairs:
+def sample_view_light_pairs(
+    batch: int,
+    generator: torch.Generator,
+    count: int = 10,
+    highlights: int = 5,
+    distance: float = RENDER_DISTANCE,
+    dtype=torch.float32,
+    device=None,
+) -> ViewLightPairs:
     """Draw ``count`` view/light pairs per batch element; the last ``highlights`` force a highlight.
 
     Ordinary pair: camera ``= distance · ω_v``, light ``= distance · ω_l`` with independent
@@ -114,8 +131,10 @@ def sample_view_light_pairs(batch: int, generator: torch.Generator, count: int =
     All randomness comes from ``generator`` (seed it for reproducible losses).
     """
     if not 0 <= highlights <= count or count < 1:
-        raise ConfigError(f"sample_view_light_pairs: need 0 ≤ highlights ≤ count and count ≥ 1, got "
-                          f"highlights={highlights}, count={count}")
+        raise ConfigError(
+            f"sample_view_light_pairs: need 0 ≤ highlights ≤ count and count ≥ 1, got "
+            f"highlights={highlights}, count={count}"
+        )
     plain = count - highlights
     cameras = distance * _cosine_hemisphere((batch, count), generator, dtype, device)
     lights = distance * _cosine_hemisphere((batch, count), generator, dtype, device)
@@ -149,10 +168,15 @@ def rendering_loss(pred: Maps, target: Maps, pairs: ViewLightPairs, render: Rend
 def _mask_like(mask: Mask, x: torch.Tensor) -> torch.Tensor:
     if mask is None:
         return torch.ones_like(x[:, :1])
-    if (mask.ndim != 4 or mask.shape[0] != x.shape[0] or mask.shape[2:] != x.shape[2:]
-            or mask.shape[1] not in (1, x.shape[1])):
-        raise InputError(f"mask has shape {tuple(mask.shape)}; expected ({x.shape[0]}, 1, "
-                         f"{x.shape[2]}, {x.shape[3]})")
+    if (
+        mask.ndim != 4
+        or mask.shape[0] != x.shape[0]
+        or mask.shape[2:] != x.shape[2:]
+        or mask.shape[1] not in (1, x.shape[1])
+    ):
+        raise InputError(
+            f"mask has shape {tuple(mask.shape)}; expected ({x.shape[0]}, 1, {x.shape[2]}, {x.shape[3]})"
+        )
     return mask.to(x.dtype)
 
 
@@ -203,8 +227,9 @@ def scale_invariant_log_mse(pred: torch.Tensor, target: torch.Tensor, mask: Mask
     return masked_mse(torch.log1p((tau * pred).clamp_min(0.0)), torch.log1p(target.clamp_min(0.0)), mask)
 
 
-def entropy_regulariser(weights: torch.Tensor, dim: int = 1, mask: Mask = None,
-                        eps: float = 1e-12) -> torch.Tensor:
+def entropy_regulariser(
+    weights: torch.Tensor, dim: int = 1, mask: Mask = None, eps: float = 1e-12
+) -> torch.Tensor:
     """Mean Shannon entropy ``H = −Σ_k p_k log p_k`` of ``p = w / Σ_k w`` along ``dim``.
 
     ``weights``: non-negative, e.g. (B, K, H, W) per-pixel mixture or attention weights over K

@@ -63,13 +63,28 @@ from .nafnet import NAFBlock, NAFNet, NAFNetSize, parameter_count
 from .transforms import LOG_EPS, log_input, soft_clamp_log, unit_interval, unit_normal
 
 __all__ = [
-    "ViewEncoder", "NormalNet", "SVSGNet", "SpecNet", "RefineNet", "MAIRModel", "MAIROutput",
-    "MVANet", "MVAOutput", "AttentionBlock", "AttentionPool", "MLPBlock", "PixelSGLighting",
-    "view_direction_maps", "in_frame_weights", "multiview_shots", "stage_parameter_counts",
+    "ViewEncoder",
+    "NormalNet",
+    "SVSGNet",
+    "SpecNet",
+    "RefineNet",
+    "MAIRModel",
+    "MAIROutput",
+    "MVANet",
+    "MVAOutput",
+    "AttentionBlock",
+    "AttentionPool",
+    "MLPBlock",
+    "PixelSGLighting",
+    "view_direction_maps",
+    "in_frame_weights",
+    "multiview_shots",
+    "stage_parameter_counts",
 ]
 
 
 # ------------------------------------------------------------------------------- image stages
+
 
 class ViewEncoder(nn.Module):
     """Shared per-view encoder pooled over the views (weighted mean and variance).
@@ -145,8 +160,14 @@ class SVSGNet(nn.Module):
     ====================  ================  ==================================
     """
 
-    def __init__(self, encoder_width: int, size: NAFNetSize, num_sgs: int = 3,
-                 sharpness_range=(1.0, 2000.0), log_eps: float = LOG_EPS):
+    def __init__(
+        self,
+        encoder_width: int,
+        size: NAFNetSize,
+        num_sgs: int = 3,
+        sharpness_range=(1.0, 2000.0),
+        log_eps: float = LOG_EPS,
+    ):
         super().__init__()
         self.num_sgs = num_sgs
         self.log_lambda = (math.log(sharpness_range[0]), math.log(sharpness_range[1]))
@@ -157,11 +178,11 @@ class SVSGNet(nn.Module):
         s = self.num_sgs
         raw = self.net(torch.cat([self.encoder(views, directions, weights), normal], dim=1))
         b, _, h, w = raw.shape
-        axis = unit_normal(raw[:, :3 * s].reshape(b * s, 3, h, w)).reshape(b, s, 3, h, w)
+        axis = unit_normal(raw[:, : 3 * s].reshape(b * s, 3, h, w)).reshape(b, s, 3, h, w)
         lo, hi = self.log_lambda
-        sharpness = torch.exp(lo + (hi - lo) * torch.sigmoid(raw[:, 3 * s:4 * s])).reshape(b, s, 1, h, w)
-        visibility = unit_interval(raw[:, 4 * s:5 * s]).reshape(b, s, 1, h, w)
-        intensity = torch.exp(soft_clamp_log(raw[:, 5 * s:].mean(dim=(2, 3)))).reshape(b, s, 3)
+        sharpness = torch.exp(lo + (hi - lo) * torch.sigmoid(raw[:, 3 * s : 4 * s])).reshape(b, s, 1, h, w)
+        visibility = unit_interval(raw[:, 4 * s : 5 * s]).reshape(b, s, 1, h, w)
+        intensity = torch.exp(soft_clamp_log(raw[:, 5 * s :].mean(dim=(2, 3)))).reshape(b, s, 3)
         return PixelSGLighting(axis, sharpness, visibility, intensity)
 
 
@@ -193,8 +214,9 @@ class SpecNet(nn.Module):
         self.log_eps = log_eps
         self.mlp = mlp_layers([SPEC_INPUTS] + [hidden] * layers + [features])
 
-    def forward(self, lighting: PixelSGLighting, directions: torch.Tensor,
-                normal: torch.Tensor) -> torch.Tensor:
+    def forward(
+        self, lighting: PixelSGLighting, directions: torch.Tensor, normal: torch.Tensor
+    ) -> torch.Tensor:
         b, n, _, h, w = directions.shape
         s = lighting.num_sgs
         shape = (b, n, h, w, s)
@@ -217,8 +239,9 @@ class SpecNet(nn.Module):
 
 class _ConvUnit(nn.Sequential):
     def __init__(self, cin: int, cout: int, groups: int):
-        super().__init__(nn.Conv2d(cin, cout, 3, padding=1), nn.GroupNorm(math.gcd(groups, cout), cout),
-                         nn.GELU())
+        super().__init__(
+            nn.Conv2d(cin, cout, 3, padding=1), nn.GroupNorm(math.gcd(groups, cout), cout), nn.GELU()
+        )
 
 
 def _stage(cin: int, cout: int, size: UNetSize) -> nn.Sequential:
@@ -247,17 +270,22 @@ class RefineNet(nn.Module):
         super().__init__()
         self.in_channels, self.size = in_channels, size
         widths = size.widths
-        self.encoders = nn.ModuleList([_stage(in_channels + 3, widths[0], size)]
-                                      + [_stage(a, b, size) for a, b in zip(widths[:-1], widths[1:])])
-        self.ups = nn.ModuleList([nn.ConvTranspose2d(b, a, 2, stride=2)
-                                  for a, b in zip(widths[:-1], widths[1:])])
+        self.encoders = nn.ModuleList(
+            [_stage(in_channels + 3, widths[0], size)]
+            + [_stage(a, b, size) for a, b in zip(widths[:-1], widths[1:])]
+        )
+        self.ups = nn.ModuleList(
+            [nn.ConvTranspose2d(b, a, 2, stride=2) for a, b in zip(widths[:-1], widths[1:])]
+        )
         self.decoders = nn.ModuleList([_stage(2 * a, a, size) for a in widths[:-1]])
         self.ending = nn.Conv2d(widths[0], 7, 1)
 
     def forward(self, features: torch.Tensor, normal: torch.Tensor) -> Maps:
         if features.ndim != 4 or features.shape[1] != self.in_channels:
-            raise InputError(f"RefineNet: features have shape {tuple(features.shape)}; expected "
-                             f"(B, {self.in_channels}, H, W)")
+            raise InputError(
+                f"RefineNet: features have shape {tuple(features.shape)}; expected "
+                f"(B, {self.in_channels}, H, W)"
+            )
         height, width = features.shape[-2:]
         x = torch.cat([features, normal], dim=1)
         multiple = 2 ** (self.size.levels - 1)
@@ -275,6 +303,7 @@ class RefineNet(nn.Module):
 
 
 # ------------------------------------------------------------------------------------- model
+
 
 @dataclass
 class MAIROutput:
@@ -312,8 +341,11 @@ class MAIRModel(nn.Module):
     stage's parameters to an optimiser.
     """
 
-    STAGES = {"normal": ("normal_net",), "lighting": ("lighting_net",),
-              "brdf": ("spec_net", "mva_net", "refine_net")}
+    STAGES = {
+        "normal": ("normal_net",),
+        "lighting": ("lighting_net",),
+        "brdf": ("spec_net", "mva_net", "refine_net"),
+    }
 
     def __init__(self, config: MAIRConfig | None = None):
         super().__init__()
@@ -322,8 +354,9 @@ class MAIRModel(nn.Module):
         self.normal_net = NormalNet(s.encoder_width, s.normal, c.log_eps)
         self.lighting_net = SVSGNet(s.encoder_width, s.lighting, c.num_sgs, c.sharpness_range, c.log_eps)
         self.spec_net = SpecNet(s.spec_hidden, s.spec_layers, s.spec_features, c.log_eps)
-        self.mva_net = MVANet(3 + s.spec_features + 6, s.mva_dim, s.mva_heads, s.mva_depth, s.mva_mlp,
-                              s.brdf_features, c.fusion)
+        self.mva_net = MVANet(
+            3 + s.spec_features + 6, s.mva_dim, s.mva_heads, s.mva_depth, s.mva_mlp, s.brdf_features, c.fusion
+        )
         self.refine_net = RefineNet(s.brdf_features + 3, s.refine)
 
     def stage_parameters(self, stage: str) -> list[nn.Parameter]:
@@ -331,8 +364,9 @@ class MAIRModel(nn.Module):
             raise InputError(f"MAIRModel: unknown stage {stage!r}; use one of {', '.join(self.STAGES)}")
         return [p for name in self.STAGES[stage] for p in getattr(self, name).parameters()]
 
-    def forward(self, views: torch.Tensor, directions: torch.Tensor,
-                weights: torch.Tensor | None = None) -> MAIROutput:
+    def forward(
+        self, views: torch.Tensor, directions: torch.Tensor, weights: torch.Tensor | None = None
+    ) -> MAIROutput:
         directions, weights = check_inputs(views, directions, weights)
         b, n, _, h, w = views.shape
         normal = self.normal_net(views, directions, weights)

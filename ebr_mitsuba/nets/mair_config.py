@@ -98,8 +98,9 @@ class MAIRSize:
 
     encoder_width: int = 8
     normal: NAFNetSize = NAFNetSize(width=8, enc_blk_nums=(1, 1, 1), middle_blk_num=1, dec_blk_nums=(1, 1, 1))
-    lighting: NAFNetSize = NAFNetSize(width=8, enc_blk_nums=(1, 1, 1), middle_blk_num=1,
-                                      dec_blk_nums=(1, 1, 1))
+    lighting: NAFNetSize = NAFNetSize(
+        width=8, enc_blk_nums=(1, 1, 1), middle_blk_num=1, dec_blk_nums=(1, 1, 1)
+    )
     spec_hidden: int = 32
     spec_layers: int = 2
     spec_features: int = 16
@@ -111,10 +112,18 @@ class MAIRSize:
     refine: UNetSize = UNetSize(widths=(16, 32, 64), depth=1, groups=8)
 
     def __post_init__(self):
-        _positive("MAIRSize", encoder_width=self.encoder_width, spec_hidden=self.spec_hidden,
-                  spec_layers=self.spec_layers, spec_features=self.spec_features, mva_dim=self.mva_dim,
-                  mva_heads=self.mva_heads, mva_depth=self.mva_depth, mva_mlp=self.mva_mlp,
-                  brdf_features=self.brdf_features)
+        _positive(
+            "MAIRSize",
+            encoder_width=self.encoder_width,
+            spec_hidden=self.spec_hidden,
+            spec_layers=self.spec_layers,
+            spec_features=self.spec_features,
+            mva_dim=self.mva_dim,
+            mva_heads=self.mva_heads,
+            mva_depth=self.mva_depth,
+            mva_mlp=self.mva_mlp,
+            brdf_features=self.brdf_features,
+        )
         if self.mva_dim % self.mva_heads:
             raise ConfigError(f"MAIRSize: mva_heads ({self.mva_heads}) must divide mva_dim ({self.mva_dim})")
         for name, cls in (("normal", NAFNetSize), ("lighting", NAFNetSize), ("refine", UNetSize)):
@@ -128,30 +137,58 @@ class MAIRSize:
             return value
         if isinstance(value, str):
             if value not in MAIR_SIZE_PRESETS:
-                raise ConfigError(f"{where}: unknown MAIR size {value!r}; use one of "
-                                  f"{', '.join(MAIR_SIZE_PRESETS)} or a table of MAIRSize fields")
+                raise ConfigError(
+                    f"{where}: unknown MAIR size {value!r}; use one of "
+                    f"{', '.join(MAIR_SIZE_PRESETS)} or a table of MAIRSize fields"
+                )
             return MAIR_SIZE_PRESETS[value]
         if isinstance(value, Mapping):
-            return dataclass_from_dict(cls, value, where, nested={
-                "normal": NAFNetSize.from_value, "lighting": NAFNetSize.from_value,
-                "refine": lambda v, w: v if isinstance(v, UNetSize) else dataclass_from_dict(UNetSize, v, w)})
+            return dataclass_from_dict(
+                cls,
+                value,
+                where,
+                nested={
+                    "normal": NAFNetSize.from_value,
+                    "lighting": NAFNetSize.from_value,
+                    "refine": lambda v, w: (
+                        v if isinstance(v, UNetSize) else dataclass_from_dict(UNetSize, v, w)
+                    ),
+                },
+            )
         raise ConfigError(f"{where}: expected a MAIR size preset name or a table, got {value!r}")
 
 
 _TINY_NAF = NAFNetSize(width=4, enc_blk_nums=(1, 1), middle_blk_num=1, dec_blk_nums=(1, 1))
 MAIR_SIZE_PRESETS = {
-    "tiny": MAIRSize(encoder_width=4, normal=_TINY_NAF, lighting=_TINY_NAF, spec_hidden=8, spec_layers=1,
-                     spec_features=4, mva_dim=8, mva_heads=2, mva_depth=1, mva_mlp=16, brdf_features=8,
-                     refine=UNetSize(widths=(8, 16), depth=1, groups=4)),
+    "tiny": MAIRSize(
+        encoder_width=4,
+        normal=_TINY_NAF,
+        lighting=_TINY_NAF,
+        spec_hidden=8,
+        spec_layers=1,
+        spec_features=4,
+        mva_dim=8,
+        mva_heads=2,
+        mva_depth=1,
+        mva_mlp=16,
+        brdf_features=8,
+        refine=UNetSize(widths=(8, 16), depth=1, groups=4),
+    ),
     "small": MAIRSize(),
-    "paper": MAIRSize(encoder_width=32,
-                      normal=NAFNetSize(width=32, enc_blk_nums=(2, 2, 4, 8), middle_blk_num=12,
-                                        dec_blk_nums=(2, 2, 2, 2)),
-                      lighting=NAFNetSize(width=32, enc_blk_nums=(1, 1, 2, 4), middle_blk_num=4,
-                                          dec_blk_nums=(1, 1, 1, 1)),
-                      spec_hidden=64, spec_layers=2, spec_features=32, mva_dim=64, mva_heads=4, mva_depth=2,
-                      mva_mlp=256, brdf_features=64,
-                      refine=UNetSize(widths=(64, 128, 256, 512), depth=2, groups=16)),
+    "paper": MAIRSize(
+        encoder_width=32,
+        normal=NAFNetSize(width=32, enc_blk_nums=(2, 2, 4, 8), middle_blk_num=12, dec_blk_nums=(2, 2, 2, 2)),
+        lighting=NAFNetSize(width=32, enc_blk_nums=(1, 1, 2, 4), middle_blk_num=4, dec_blk_nums=(1, 1, 1, 1)),
+        spec_hidden=64,
+        spec_layers=2,
+        spec_features=32,
+        mva_dim=64,
+        mva_heads=4,
+        mva_depth=2,
+        mva_mlp=256,
+        brdf_features=64,
+        refine=UNetSize(widths=(64, 128, 256, 512), depth=2, groups=16),
+    ),
 }
 
 
@@ -187,8 +224,9 @@ class MAIRConfig:
             raise ConfigError(f"MAIRConfig: fusion must be one of {', '.join(FUSIONS)}, got {self.fusion!r}")
         lo_hi = self.sharpness_range
         if len(lo_hi) != 2 or not 0 < lo_hi[0] < lo_hi[1]:
-            raise ConfigError(f"MAIRConfig: sharpness_range must be (λ_min, λ_max) with 0 < λ_min < λ_max, "
-                              f"got {lo_hi}")
+            raise ConfigError(
+                f"MAIRConfig: sharpness_range must be (λ_min, λ_max) with 0 < λ_min < λ_max, got {lo_hi}"
+            )
         if not self.log_eps > 0:
             raise ConfigError(f"MAIRConfig: log_eps must be > 0, got {self.log_eps}")
         if not isinstance(self.size, MAIRSize):

@@ -127,23 +127,33 @@ class MVANet(nn.Module):
     ===============  =====  ================================
     """
 
-    def __init__(self, in_features: int, dim: int = 32, heads: int = 4, depth: int = 2, mlp: int = 64,
-                 out_features: int = 16, fusion: str = "attention"):
+    def __init__(
+        self,
+        in_features: int,
+        dim: int = 32,
+        heads: int = 4,
+        depth: int = 2,
+        mlp: int = 64,
+        out_features: int = 16,
+        fusion: str = "attention",
+    ):
         super().__init__()
         if fusion not in FUSIONS:
             raise InputError(f"MVANet: fusion must be one of {', '.join(FUSIONS)}, got {fusion!r}")
         self.in_features, self.fusion = in_features, fusion
         self.embed = nn.Linear(in_features, dim)
         attention = fusion == "attention"
-        self.blocks = nn.ModuleList([AttentionBlock(dim, heads, mlp) if attention else MLPBlock(dim, mlp)
-                                     for _ in range(depth)])
+        self.blocks = nn.ModuleList(
+            [AttentionBlock(dim, heads, mlp) if attention else MLPBlock(dim, mlp) for _ in range(depth)]
+        )
         self.pool = AttentionPool(dim, heads) if attention else None
         self.head = nn.Sequential(nn.LayerNorm(dim), mlp_layers([dim, mlp, out_features]))
 
     def forward(self, tokens: torch.Tensor, weights: torch.Tensor | None = None) -> MVAOutput:
         if tokens.ndim != 5 or tokens.shape[2] != self.in_features:
-            raise InputError(f"MVANet: tokens have shape {tuple(tokens.shape)}; expected "
-                             f"(B, N, {self.in_features}, H, W)")
+            raise InputError(
+                f"MVANet: tokens have shape {tuple(tokens.shape)}; expected (B, N, {self.in_features}, H, W)"
+            )
         b, n, c, h, w = tokens.shape
         p = normalised_weights(weights, tokens).permute(0, 3, 4, 1, 2).reshape(b * h * w, n)
         x = self.embed(tokens.permute(0, 3, 4, 1, 2).reshape(b * h * w, n, c))

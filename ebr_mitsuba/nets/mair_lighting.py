@@ -68,11 +68,13 @@ class PixelSGLighting:
         for name in ("sharpness", "visibility"):
             shape = tuple(getattr(self, name).shape)
             if shape != (b, s, 1, h, w):
-                raise InputError(f"PixelSGLighting: {name} has shape {shape}; "
-                                 f"expected ({b}, {s}, 1, {h}, {w})")
+                raise InputError(
+                    f"PixelSGLighting: {name} has shape {shape}; expected ({b}, {s}, 1, {h}, {w})"
+                )
         if tuple(self.intensity.shape) != (b, s, 3):
-            raise InputError(f"PixelSGLighting: intensity has shape {tuple(self.intensity.shape)}; "
-                             f"expected ({b}, {s}, 3)")
+            raise InputError(
+                f"PixelSGLighting: intensity has shape {tuple(self.intensity.shape)}; expected ({b}, {s}, 3)"
+            )
 
     @property
     def num_sgs(self) -> int:
@@ -86,8 +88,9 @@ class PixelSGLighting:
     def radiance(self, directions: torch.Tensor) -> torch.Tensor:
         """Incident radiance ``L_p(ω_d)`` at D world directions ``(D, 3)`` (unit): ``(B, D, 3, H, W)``."""
         if directions.ndim != 2 or directions.shape[1] != 3:
-            raise InputError(f"PixelSGLighting.radiance: directions have shape {tuple(directions.shape)}; "
-                             f"expected (D, 3)")
+            raise InputError(
+                f"PixelSGLighting.radiance: directions have shape {tuple(directions.shape)}; expected (D, 3)"
+            )
         d = directions.to(self.axis)
         cos = torch.einsum("dc,bschw->bdshw", d, self.axis)  # (B, D, S, H, W)
         lobes = torch.exp(self.sharpness[:, None, :, 0] * (cos - 1.0))  # (B, D, S, H, W)
@@ -104,11 +107,13 @@ class PixelSGLighting:
         return torch.stack([mu, 1.0 - mu], dim=1)
 
     def detach(self) -> PixelSGLighting:
-        return PixelSGLighting(self.axis.detach(), self.sharpness.detach(), self.visibility.detach(),
-                               self.intensity.detach())
+        return PixelSGLighting(
+            self.axis.detach(), self.sharpness.detach(), self.visibility.detach(), self.intensity.detach()
+        )
 
-    def pixel_environment(self, index: int = 0, row: int | None = None,
-                          col: int | None = None) -> SGEnvironment:
+    def pixel_environment(
+        self, index: int = 0, row: int | None = None, col: int | None = None
+    ) -> SGEnvironment:
         """The S lobes at one pixel (default: the centre) of batch element ``index`` as an
         :class:`~ebr_mitsuba.sgenv.SGEnvironment` (``env.json``), amplitude ``μ η``."""
         h, w = self.axis.shape[-2:]

@@ -22,6 +22,7 @@ WEIGHT_FLOOR = 1e-6  # w is clamped to this: a pixel no view saw falls back to u
 
 # ------------------------------------------------------------------------------------ geometry
 
+
 def multiview_shots() -> list[Shot]:
     """The 9 shots of ``--setup multi-view`` (row-major over the 3×3 grid, ``view{a}{b}_flash``)."""
     return setup_shots("multi-view")
@@ -74,8 +75,10 @@ def check_inputs(views: torch.Tensor, directions: torch.Tensor, weights: torch.T
         if x.ndim == 4:
             x = x[None]
         if x.ndim != 5 or tuple(x.shape[1:]) != (n, channels, h, w) or x.shape[0] not in (1, b):
-            raise InputError(f"MAIR: {name} have shape {tuple(x.shape)}; expected ({b}, {n}, {channels}, "
-                             f"{h}, {w}) or ({n}, {channels}, {h}, {w})")
+            raise InputError(
+                f"MAIR: {name} have shape {tuple(x.shape)}; expected ({b}, {n}, {channels}, "
+                f"{h}, {w}) or ({n}, {channels}, {h}, {w})"
+            )
         return x.to(views.dtype).expand(b, n, channels, h, w)
 
     directions = broadcast("directions", directions, 3)

@@ -44,8 +44,10 @@ class Maps:
         for name, channels in MAP_LAYOUT[1:]:
             shape = getattr(self, name).shape
             if tuple(shape) != (ref[0], channels, ref[2], ref[3]):
-                raise InputError(f"Maps: {name} has shape {tuple(shape)}; expected "
-                                 f"({ref[0]}, {channels}, {ref[2]}, {ref[3]}) to match the normal map")
+                raise InputError(
+                    f"Maps: {name} has shape {tuple(shape)}; expected "
+                    f"({ref[0]}, {channels}, {ref[2]}, {ref[3]}) to match the normal map"
+                )
 
     def stack(self) -> torch.Tensor:
         """All maps as one ``(B, 10, H, W)`` tensor in :data:`MAP_LAYOUT` order."""
@@ -58,7 +60,7 @@ class Maps:
             raise InputError(f"Maps.unstack: got shape {tuple(stacked.shape)}; expected (B, 10, H, W)")
         parts, start = {}, 0
         for name, channels in MAP_LAYOUT:
-            parts[name] = stacked[:, start:start + channels]
+            parts[name] = stacked[:, start : start + channels]
             start += channels
         return cls(**parts)
 
@@ -66,8 +68,12 @@ class Maps:
     def from_raw(cls, raw: torch.Tensor) -> Maps:
         """Constrained maps from 10 raw channels: unit normal (``z > 0``), sigmoid for the rest."""
         r = cls.unstack(raw)
-        return cls(unit_normal(r.normal), unit_interval(r.diffuse), unit_interval(r.specular),
-                   unit_interval(r.roughness))
+        return cls(
+            unit_normal(r.normal),
+            unit_interval(r.diffuse),
+            unit_interval(r.specular),
+            unit_interval(r.roughness),
+        )
 
     @classmethod
     def from_svbrdf(cls, items: Sequence[SVBRDF], device=None) -> Maps:
@@ -81,8 +87,10 @@ class Maps:
                 arrays = [a[..., None] for a in arrays]
             shapes = {a.shape for a in arrays}
             if len(shapes) != 1:
-                raise InputError(f"Maps.from_svbrdf: {name} maps differ in size {sorted(shapes)}; "
-                                 f"resample them to one size")
+                raise InputError(
+                    f"Maps.from_svbrdf: {name} maps differ in size {sorted(shapes)}; "
+                    f"resample them to one size"
+                )
             return torch.from_numpy(np.stack(arrays)).permute(0, 3, 1, 2).contiguous().to(device)
 
         return cls(**{name: batch(name) for name, _ in MAP_LAYOUT})
@@ -93,8 +101,13 @@ class Maps:
         def arr(t):
             return t[index].detach().to("cpu", torch.float32).permute(1, 2, 0).numpy()
 
-        return SVBRDF(arr(self.normal), arr(self.diffuse).clip(0, 1), arr(self.specular).clip(0, 1),
-                      arr(self.roughness)[..., 0].clip(0, 1), source=source)
+        return SVBRDF(
+            arr(self.normal),
+            arr(self.diffuse).clip(0, 1),
+            arr(self.specular).clip(0, 1),
+            arr(self.roughness)[..., 0].clip(0, 1),
+            source=source,
+        )
 
     def detach(self) -> Maps:
         return Maps(*(getattr(self, name).detach() for name, _ in MAP_LAYOUT))

@@ -72,10 +72,15 @@ class NAFNetSize:
         if not isinstance(self.width, int) or self.width < 1:
             raise ConfigError(f"NAFNetSize: width must be a positive integer, got {self.width!r}")
         if len(self.enc_blk_nums) != len(self.dec_blk_nums):
-            raise ConfigError(f"NAFNetSize: enc_blk_nums {self.enc_blk_nums} and dec_blk_nums "
-                              f"{self.dec_blk_nums} must have the same length (one entry per level)")
-        for name, counts in (("enc_blk_nums", self.enc_blk_nums), ("dec_blk_nums", self.dec_blk_nums),
-                             ("middle_blk_num", (self.middle_blk_num,))):
+            raise ConfigError(
+                f"NAFNetSize: enc_blk_nums {self.enc_blk_nums} and dec_blk_nums "
+                f"{self.dec_blk_nums} must have the same length (one entry per level)"
+            )
+        for name, counts in (
+            ("enc_blk_nums", self.enc_blk_nums),
+            ("dec_blk_nums", self.dec_blk_nums),
+            ("middle_blk_num", (self.middle_blk_num,)),
+        ):
             if any((not isinstance(n, int)) or n < 0 for n in counts):
                 raise ConfigError(f"NAFNetSize: {name} must be non-negative integers, got {counts}")
 
@@ -91,8 +96,10 @@ class NAFNetSize:
             return value
         if isinstance(value, str):
             if value not in SIZE_PRESETS:
-                raise ConfigError(f"{where}: unknown network size {value!r}; use one of "
-                                  f"{', '.join(SIZE_PRESETS)} or a table of NAFNetSize fields")
+                raise ConfigError(
+                    f"{where}: unknown network size {value!r}; use one of "
+                    f"{', '.join(SIZE_PRESETS)} or a table of NAFNetSize fields"
+                )
             return SIZE_PRESETS[value]
         if isinstance(value, Mapping):
             return dataclass_from_dict(cls, value, where)
@@ -205,10 +212,11 @@ class NAFNet(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if x.ndim != 4 or x.shape[1] != self.in_channels:
-            raise InputError(f"NAFNet: input has shape {tuple(x.shape)}; "
-                             f"expected (B, {self.in_channels}, H, W)")
+            raise InputError(
+                f"NAFNet: input has shape {tuple(x.shape)}; expected (B, {self.in_channels}, H, W)"
+            )
         height, width = x.shape[-2:]
-        multiple = 2 ** self.size.levels
+        multiple = 2**self.size.levels
         pad_h = (-height) % multiple
         pad_w = (-width) % multiple
         if pad_h or pad_w:

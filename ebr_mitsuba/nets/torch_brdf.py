@@ -168,8 +168,9 @@ def _light_geometry(maps: Maps, light, camera):
     return n, l, v, dist2
 
 
-def render_point_light(maps: Maps, light, intensity=DEFAULT_FLASH_INTENSITY, camera=NEAR_CAMERA,
-                       fresnel: str = "schlick") -> torch.Tensor:
+def render_point_light(
+    maps: Maps, light, intensity=DEFAULT_FLASH_INTENSITY, camera=NEAR_CAMERA, fresnel: str = "schlick"
+) -> torch.Tensor:
     """Radiance ``f(l, v) · max(n·l, 0) · I / d²`` of the maps under an isotropic point light.
 
     ``light``, ``camera``: positions (3,) or (B, 3) (world, z-up: ``docs/conventions.md``);
@@ -184,8 +185,9 @@ def render_point_light(maps: Maps, light, intensity=DEFAULT_FLASH_INTENSITY, cam
     return (f * scale).permute(0, 3, 1, 2)
 
 
-def render_diffuse_point_light(normal: torch.Tensor, diffuse: torch.Tensor, light,
-                               intensity=DEFAULT_FLASH_INTENSITY, camera=NEAR_CAMERA) -> torch.Tensor:
+def render_diffuse_point_light(
+    normal: torch.Tensor, diffuse: torch.Tensor, light, intensity=DEFAULT_FLASH_INTENSITY, camera=NEAR_CAMERA
+) -> torch.Tensor:
     """Diffuse-only radiance ``d/π · I · max(n·l, 0) / d²`` (masked like the BRDF).
 
     ``normal``, ``diffuse``: (B, 3, H, W); returns (B, 3, H, W).

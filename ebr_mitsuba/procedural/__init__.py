@@ -37,9 +37,23 @@ from .environments import (
 from .materials import FAMILIES, METALS, family_parameters, make_material
 
 __all__ = [
-    "FAMILIES", "METALS", "make_material", "family_parameters",
-    "ENV_KINDS", "INTENSITY_LEVELS", "FLASH_IRRADIANCE", "make_environment", "environment_choice",
-    "irradiance", "irradiance_luminance",
-    "AugmentSettings", "augment", "blend", "jitter_diffuse", "mirror", "random_mask", "rotate90",
+    "FAMILIES",
+    "METALS",
+    "make_material",
+    "family_parameters",
+    "ENV_KINDS",
+    "INTENSITY_LEVELS",
+    "FLASH_IRRADIANCE",
+    "make_environment",
+    "environment_choice",
+    "irradiance",
+    "irradiance_luminance",
+    "AugmentSettings",
+    "augment",
+    "blend",
+    "jitter_diffuse",
+    "mirror",
+    "random_mask",
+    "rotate90",
     "rotate_scale_crop",
 ]

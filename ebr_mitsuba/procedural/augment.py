@@ -43,8 +43,13 @@ from .normals import normals_to_slopes, slopes_to_normals
 
 
 def _with(m: SVBRDF, normal, diffuse, specular, roughness, tag: str) -> SVBRDF:
-    return SVBRDF(normal=normal, diffuse=np.clip(diffuse, 0.0, 1.0), specular=np.clip(specular, 0.0, 1.0),
-                  roughness=np.clip(roughness, 0.0, 1.0), source=f"{m.source}+{tag}")
+    return SVBRDF(
+        normal=normal,
+        diffuse=np.clip(diffuse, 0.0, 1.0),
+        specular=np.clip(specular, 0.0, 1.0),
+        roughness=np.clip(roughness, 0.0, 1.0),
+        source=f"{m.source}+{tag}",
+    )
 
 
 def _rotate_xy(n: np.ndarray, angle: float) -> np.ndarray:
@@ -92,8 +97,9 @@ def _bilinear(img: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray
     return top * (1 - fr) + bottom * fr
 
 
-def rotate_scale_crop(m: SVBRDF, angle: float, zoom: float = 1.0, center=(0.0, 0.0),
-                      size: int | None = None) -> SVBRDF:
+def rotate_scale_crop(
+    m: SVBRDF, angle: float, zoom: float = 1.0, center=(0.0, 0.0), size: int | None = None
+) -> SVBRDF:
     """Rotate by ``angle`` (radians, counter-clockwise), magnify by ``zoom`` and crop.
 
     The output (``size``², default the input's size) covers the world square [-1, 1]²; output
@@ -107,9 +113,11 @@ def rotate_scale_crop(m: SVBRDF, angle: float, zoom: float = 1.0, center=(0.0, 0
     extent = (abs(c) + abs(s)) / zoom
     cx, cy = (float(v) for v in center)
     if zoom <= 0 or max(abs(cx), abs(cy)) + extent > 1.0 + 1e-9:
-        raise InputError(f"rotate_scale_crop: angle {angle:.4g} rad at zoom {zoom:.4g} around "
-                         f"({cx:.3g}, {cy:.3g}) reaches outside the source; raise zoom to at least "
-                         f"{(abs(c) + abs(s)) / max(1e-9, 1 - max(abs(cx), abs(cy))):.4g}")
+        raise InputError(
+            f"rotate_scale_crop: angle {angle:.4g} rad at zoom {zoom:.4g} around "
+            f"({cx:.3g}, {cy:.3g}) reaches outside the source; raise zoom to at least "
+            f"{(abs(c) + abs(s)) / max(1e-9, 1 - max(abs(cx), abs(cy))):.4g}"
+        )
     u, v = grid(size)
     px = 2.0 * u - 1.0
     py = 1.0 - 2.0 * v
@@ -123,12 +131,18 @@ def rotate_scale_crop(m: SVBRDF, angle: float, zoom: float = 1.0, center=(0.0, 0
     diffuse = _bilinear(m.diffuse.astype(np.float64), rows, cols)
     specular = _bilinear(m.specular.astype(np.float64), rows, cols)
     rough = _bilinear(m.roughness.astype(np.float64), rows, cols)
-    return _with(m, slopes_to_normals(turned), diffuse, specular, rough,
-                 f"rot{math.degrees(angle):.3g}zoom{zoom:.3g}")
+    return _with(
+        m, slopes_to_normals(turned), diffuse, specular, rough, f"rot{math.degrees(angle):.3g}zoom{zoom:.3g}"
+    )
 
 
-def jitter_diffuse(diffuse: np.ndarray, hue: float = 0.0, saturation: float = 1.0,
-                   brightness: float = 1.0, contrast: float = 1.0) -> np.ndarray:
+def jitter_diffuse(
+    diffuse: np.ndarray,
+    hue: float = 0.0,
+    saturation: float = 1.0,
+    brightness: float = 1.0,
+    contrast: float = 1.0,
+) -> np.ndarray:
     """Colour-jittered diffuse map (H, W, 3) float32 in [0, 1].
 
     ``hue``: shift as a fraction of the hue circle; ``saturation`` and ``brightness``: factors
@@ -144,8 +158,9 @@ def jitter_diffuse(diffuse: np.ndarray, hue: float = 0.0, saturation: float = 1.
     return np.clip(mean + contrast * (rgb - mean), 0.0, 1.0).astype(np.float32)
 
 
-def random_mask(rng: np.random.Generator, size: int, coverage: float = 0.5, softness: float = 0.05,
-                freq: int = 3) -> np.ndarray:
+def random_mask(
+    rng: np.random.Generator, size: int, coverage: float = 0.5, softness: float = 0.05, freq: int = 3
+) -> np.ndarray:
     """Soft, tileable mask (size, size) in [0, 1]: fBm thresholded so that about ``coverage`` of
     the pixels are ≥ 0.5; ``softness`` is the transition width in noise units."""
     u, v = grid(size)
@@ -217,26 +232,38 @@ class AugmentSettings:
             raise InputError("AugmentSettings: hue must be in [0, 0.5] and blend in [0, 1]")
         clo, chi = self.mask_coverage
         if not 0.0 < clo <= chi < 1.0:
-            raise InputError(f"AugmentSettings: mask_coverage {self.mask_coverage} must satisfy "
-                             f"0 < low <= high < 1")
+            raise InputError(
+                f"AugmentSettings: mask_coverage {self.mask_coverage} must satisfy 0 < low <= high < 1"
+            )
 
     @classmethod
     def none(cls) -> AugmentSettings:
         """Settings that change nothing (for tests and ablations)."""
-        return cls(rotate90=False, mirror=False, max_angle=0.0, zoom=(1.0, 1.0), hue=0.0,
-                   saturation=0.0, brightness=0.0, contrast=0.0, blend=0.0)
+        return cls(
+            rotate90=False,
+            mirror=False,
+            max_angle=0.0,
+            zoom=(1.0, 1.0),
+            hue=0.0,
+            saturation=0.0,
+            brightness=0.0,
+            contrast=0.0,
+            blend=0.0,
+        )
 
     def replace(self, **changes) -> AugmentSettings:
         known = {f.name for f in fields(self)}
         unknown = sorted(set(changes) - known)
         if unknown:
-            raise InputError(f"AugmentSettings: unknown field(s) {', '.join(unknown)}; "
-                             f"known: {', '.join(sorted(known))}")
+            raise InputError(
+                f"AugmentSettings: unknown field(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}"
+            )
         return replace(self, **changes)
 
 
-def augment(m: SVBRDF, rng: np.random.Generator, other: SVBRDF | None = None,
-            settings: AugmentSettings | None = None) -> SVBRDF:
+def augment(
+    m: SVBRDF, rng: np.random.Generator, other: SVBRDF | None = None, settings: AugmentSettings | None = None
+) -> SVBRDF:
     """One random augmentation of ``m`` (same size): optional blend with ``other``, 90° rotation,
     mirror, small rotation + zoom + crop, diffuse colour jitter (see :class:`AugmentSettings`)."""
     st = settings or AugmentSettings()
@@ -265,6 +292,11 @@ def augment(m: SVBRDF, rng: np.random.Generator, other: SVBRDF | None = None,
     if angle != 0.0 or zoom != 1.0:
         m = rotate_scale_crop(m, angle, zoom, center)
     if (hue, sat, bright, contrast) != (0.0, 1.0, 1.0, 1.0):
-        m = SVBRDF(m.normal, jitter_diffuse(m.diffuse, hue, sat, bright, contrast), m.specular,
-                   m.roughness, source=f"{m.source}+jitter")
+        m = SVBRDF(
+            m.normal,
+            jitter_diffuse(m.diffuse, hue, sat, bright, contrast),
+            m.specular,
+            m.roughness,
+            source=f"{m.source}+jitter",
+        )
     return m

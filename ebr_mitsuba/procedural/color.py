@@ -18,8 +18,7 @@ def rgb_to_hsv(rgb: np.ndarray) -> np.ndarray:
     minc = c.min(axis=-1)
     delta = maxc - minc
     safe = np.where(delta > 0, delta, 1.0)
-    h = np.where(maxc == r, (g - b) / safe,
-                 np.where(maxc == g, 2.0 + (b - r) / safe, 4.0 + (r - g) / safe))
+    h = np.where(maxc == r, (g - b) / safe, np.where(maxc == g, 2.0 + (b - r) / safe, 4.0 + (r - g) / safe))
     h = np.where(delta > 0, (h / 6.0) % 1.0, 0.0)
     s = np.where(maxc > 0, delta / np.where(maxc > 0, maxc, 1.0), 0.0)
     return np.stack([h, s, maxc], axis=-1)

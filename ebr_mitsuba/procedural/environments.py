@@ -49,7 +49,7 @@ from ..sgenv import SGEnvironment
 ENV_KINDS = ("sun_sky", "window", "overcast")
 INTENSITY_LEVELS: dict[str, float] = {"low": 0.2, "medium": 1.0, "high": 3.0}
 #: Irradiance of the default flash at the sample centre (W/sr / distance²).
-FLASH_IRRADIANCE = DEFAULT_FLASH_INTENSITY / NEAR_DISTANCE ** 2
+FLASH_IRRADIANCE = DEFAULT_FLASH_INTENSITY / NEAR_DISTANCE**2
 IRRADIANCE_NODES = 64
 
 
@@ -115,14 +115,26 @@ def _assemble(lobes, shares, target: float, extras=()) -> SGEnvironment:
 def _sun_sky(rng, target: float) -> SGEnvironment:
     elev = math.radians(rng.uniform(12.0, 75.0))
     warm = 1.0 - math.sin(elev)
-    sun = (_direction(elev, 0.0), _log_uniform(rng, 1e3, 5e3),
-           _unit_lum([1.0, 0.95 - 0.25 * warm, 0.88 - 0.45 * warm]))
-    zenith = (np.array([0.0, 0.0, 1.0]), rng.uniform(1.5, 4.0),
-              _unit_lum([0.45, 0.62, 1.0] * (1.0 + 0.1 * rng.uniform(-1, 1, 3))))
-    circum = (_direction(0.5 * elev, rng.uniform(-0.2, 0.2)), rng.uniform(3.0, 8.0),
-              _unit_lum([0.95, 0.93, 1.0]))
-    opposite = (_direction(math.radians(rng.uniform(5, 20)), math.pi + rng.uniform(-0.5, 0.5)),
-                rng.uniform(2.0, 4.0), _unit_lum([0.7, 0.8, 1.0]))
+    sun = (
+        _direction(elev, 0.0),
+        _log_uniform(rng, 1e3, 5e3),
+        _unit_lum([1.0, 0.95 - 0.25 * warm, 0.88 - 0.45 * warm]),
+    )
+    zenith = (
+        np.array([0.0, 0.0, 1.0]),
+        rng.uniform(1.5, 4.0),
+        _unit_lum([0.45, 0.62, 1.0] * (1.0 + 0.1 * rng.uniform(-1, 1, 3))),
+    )
+    circum = (
+        _direction(0.5 * elev, rng.uniform(-0.2, 0.2)),
+        rng.uniform(3.0, 8.0),
+        _unit_lum([0.95, 0.93, 1.0]),
+    )
+    opposite = (
+        _direction(math.radians(rng.uniform(5, 20)), math.pi + rng.uniform(-0.5, 0.5)),
+        rng.uniform(2.0, 4.0),
+        _unit_lum([0.7, 0.8, 1.0]),
+    )
     sun_share = rng.uniform(0.55, 0.85)
     sky = rng.dirichlet([3.0, 2.0, 1.0]) * (1.0 - sun_share)
     albedo = rng.uniform(0.1, 0.3)
@@ -140,31 +152,52 @@ def _window(rng, target: float) -> SGEnvironment:
         elev = math.radians(rng.uniform(5.0, 45.0))
         az = base_az + (0.0 if i == 0 else rng.uniform(-math.pi / 3, math.pi / 3))
         colour = [0.9, 0.95, 1.0] if daylight else [1.0, 0.85, 0.65]
-        lobe = (_direction(elev, az), _log_uniform(rng, 20.0, 300.0),
-                _unit_lum(np.asarray(colour) * (1.0 + 0.05 * rng.uniform(-1, 1, 3))))
+        lobe = (
+            _direction(elev, az),
+            _log_uniform(rng, 20.0, 300.0),
+            _unit_lum(np.asarray(colour) * (1.0 + 0.05 * rng.uniform(-1, 1, 3))),
+        )
         if i < count:
             lobes.append(lobe)
     window_share = rng.uniform(0.6, 0.85)
     split = rng.dirichlet([2.0, 2.0]) if count == 2 else np.array([1.0])
-    fill = (_direction(math.radians(rng.uniform(50, 90)), rng.uniform(-math.pi, math.pi)),
-            rng.uniform(0.5, 2.0), _unit_lum([1.0, 0.9, 0.78] * (1.0 + 0.08 * rng.uniform(-1, 1, 3))))
-    floor = (np.array([0.0, 0.0, -1.0]), rng.uniform(1.0, 2.0),
-             _unit_lum([0.6, 0.5, 0.4]) * rng.uniform(0.05, 0.2) * target / math.pi)
-    return _assemble([*lobes, fill], [*(split * window_share), 1.0 - window_share], target,
-                     extras=[floor])
+    fill = (
+        _direction(math.radians(rng.uniform(50, 90)), rng.uniform(-math.pi, math.pi)),
+        rng.uniform(0.5, 2.0),
+        _unit_lum([1.0, 0.9, 0.78] * (1.0 + 0.08 * rng.uniform(-1, 1, 3))),
+    )
+    floor = (
+        np.array([0.0, 0.0, -1.0]),
+        rng.uniform(1.0, 2.0),
+        _unit_lum([0.6, 0.5, 0.4]) * rng.uniform(0.05, 0.2) * target / math.pi,
+    )
+    return _assemble([*lobes, fill], [*(split * window_share), 1.0 - window_share], target, extras=[floor])
 
 
 def _overcast(rng, target: float) -> SGEnvironment:
     count = int(rng.integers(3, 6))
     tint = [0.92, 0.96, 1.0] * (1.0 + 0.04 * rng.uniform(-1, 1, 3))
-    lobes = [(_direction(math.radians(rng.uniform(70, 90)), rng.uniform(-math.pi, math.pi)),
-              rng.uniform(0.5, 2.0), _unit_lum(tint))]
+    lobes = [
+        (
+            _direction(math.radians(rng.uniform(70, 90)), rng.uniform(-math.pi, math.pi)),
+            rng.uniform(0.5, 2.0),
+            _unit_lum(tint),
+        )
+    ]
     for _ in range(count - 1):
-        lobes.append((_direction(math.radians(rng.uniform(20, 70)), rng.uniform(-math.pi, math.pi)),
-                      rng.uniform(0.5, 4.0), _unit_lum(tint * (1.0 + 0.05 * rng.uniform(-1, 1, 3)))))
+        lobes.append(
+            (
+                _direction(math.radians(rng.uniform(20, 70)), rng.uniform(-math.pi, math.pi)),
+                rng.uniform(0.5, 4.0),
+                _unit_lum(tint * (1.0 + 0.05 * rng.uniform(-1, 1, 3))),
+            )
+        )
     shares = rng.dirichlet(np.ones(count))
-    ground = (np.array([0.0, 0.0, -1.0]), rng.uniform(1.0, 2.0),
-              _unit_lum([0.3, 0.3, 0.28]) * rng.uniform(0.1, 0.25) * target / math.pi)
+    ground = (
+        np.array([0.0, 0.0, -1.0]),
+        rng.uniform(1.0, 2.0),
+        _unit_lum([0.3, 0.3, 0.28]) * rng.uniform(0.1, 0.25) * target / math.pi,
+    )
     return _assemble(lobes, shares, target, extras=[ground])
 
 
@@ -187,11 +220,14 @@ def _choose(rng, kind, intensity) -> tuple[str, str]:
     drawn_kind = ENV_KINDS[int(rng.integers(len(ENV_KINDS)))]
     drawn_level = tuple(INTENSITY_LEVELS)[int(rng.integers(len(INTENSITY_LEVELS)))]
     if kind is not None and kind not in ENV_KINDS:
-        raise InputError(f"procedural environment: unknown kind {kind!r}; choose one of "
-                         f"{', '.join(ENV_KINDS)}")
+        raise InputError(
+            f"procedural environment: unknown kind {kind!r}; choose one of {', '.join(ENV_KINDS)}"
+        )
     if intensity is not None and intensity not in INTENSITY_LEVELS:
-        raise InputError(f"procedural environment: unknown intensity {intensity!r}; choose one of "
-                         f"{', '.join(INTENSITY_LEVELS)}")
+        raise InputError(
+            f"procedural environment: unknown intensity {intensity!r}; choose one of "
+            f"{', '.join(INTENSITY_LEVELS)}"
+        )
     return kind or drawn_kind, intensity or drawn_level
 
 

@@ -77,8 +77,16 @@ _TERRACOTTA = (0.555, 0.212, 0.11)
 _MARBLE = (0.83, 0.791, 0.753)
 _PORCELAIN = (0.745, 0.745, 0.723)
 
-_TILE_COLORS = [_PORCELAIN, (0.75, 0.64, 0.48), (0.05, 0.12, 0.45), (0.05, 0.33, 0.34),
-                (0.24, 0.38, 0.22), _TERRACOTTA, (0.03, 0.03, 0.03), (0.6, 0.4, 0.05)]
+_TILE_COLORS = [
+    _PORCELAIN,
+    (0.75, 0.64, 0.48),
+    (0.05, 0.12, 0.45),
+    (0.05, 0.33, 0.34),
+    (0.24, 0.38, 0.22),
+    _TERRACOTTA,
+    (0.03, 0.03, 0.03),
+    (0.6, 0.4, 0.05),
+]
 _BRICK_COLORS = [_BRICK, _TERRACOTTA, (0.45, 0.33, 0.18), (0.25, 0.24, 0.22)]
 _WOOD = {  # species: (early wood, late wood) albedo
     "light": ((0.56, 0.40, 0.22), (0.40, 0.25, 0.12)),
@@ -86,10 +94,24 @@ _WOOD = {  # species: (early wood, late wood) albedo
     "walnut": ((0.17, 0.09, 0.045), (0.07, 0.035, 0.018)),
     "cherry": ((0.36, 0.13, 0.065), (0.19, 0.06, 0.03)),
 }
-_LEATHER_COLORS = [(0.02, 0.02, 0.02), (0.09, 0.045, 0.02), (0.35, 0.18, 0.08), (0.18, 0.03, 0.03),
-                   (0.02, 0.03, 0.08), (0.2, 0.2, 0.2)]
-_PAINT_COLORS = [(0.8, 0.8, 0.78), (0.82, 0.76, 0.62), (0.5, 0.5, 0.5), (0.6, 0.5, 0.35),
-                 (0.45, 0.55, 0.7), (0.4, 0.5, 0.35), (0.55, 0.3, 0.18), (0.7, 0.45, 0.45)]
+_LEATHER_COLORS = [
+    (0.02, 0.02, 0.02),
+    (0.09, 0.045, 0.02),
+    (0.35, 0.18, 0.08),
+    (0.18, 0.03, 0.03),
+    (0.02, 0.03, 0.08),
+    (0.2, 0.2, 0.2),
+]
+_PAINT_COLORS = [
+    (0.8, 0.8, 0.78),
+    (0.82, 0.76, 0.62),
+    (0.5, 0.5, 0.5),
+    (0.6, 0.5, 0.35),
+    (0.45, 0.55, 0.7),
+    (0.4, 0.5, 0.35),
+    (0.55, 0.3, 0.18),
+    (0.7, 0.45, 0.45),
+]
 _MARBLE_STONES = {  # stone: (base, vein) albedo
     "carrara": (_MARBLE, (0.25, 0.25, 0.27)),
     "marquina": ((0.02, 0.02, 0.022), (0.7, 0.7, 0.68)),
@@ -112,8 +134,7 @@ class _Params:
         self.rng = rng
 
     def _bad(self, name, value, what):
-        return InputError(f"procedural material '{self.family}': {name}={value!r} is invalid; "
-                          f"give {what}")
+        return InputError(f"procedural material '{self.family}': {name}={value!r} is invalid; give {what}")
 
     def number(self, name, given, lo, hi, draw=None):
         a, b = draw if draw is not None else (lo, hi)
@@ -178,6 +199,7 @@ def _grey(value, shape) -> np.ndarray:
 
 # -- families ----------------------------------------------------------------------------------
 
+
 def tiles(rng, size, *, style=None, rows=None, grout=None, color=None, roughness=None, source=""):
     """Ceramic tiles or bricks in running bond, separated by recessed, rough grout."""
     p = _Params("tiles", rng)
@@ -212,8 +234,12 @@ def tiles(rng, size, *, style=None, rows=None, grout=None, color=None, roughness
 
     bump_tile = (0.004 if bricks else 0.0008) * surface
     height = tile_h * (0.06 * mask + 0.02 * (1 - mask) * sand) + mask * (bump_tile + 0.004 * rand[..., 3])
-    tile_rgb = color * (1.0 + (0.25 if bricks else 0.08) * rand[..., :3].mean(-1, keepdims=True)
-                        + 0.06 * rand[..., :3] + (0.15 if bricks else 0.04) * blotch[..., None])
+    tile_rgb = color * (
+        1.0
+        + (0.25 if bricks else 0.08) * rand[..., :3].mean(-1, keepdims=True)
+        + 0.06 * rand[..., :3]
+        + (0.15 if bricks else 0.04) * blotch[..., None]
+    )
     grout_rgb = grout_color * (1.0 + 0.25 * sand[..., None])
     diffuse = mask[..., None] * tile_rgb + (1 - mask[..., None]) * grout_rgb
     spec_tile = _f0(1.5 if bricks else 1.55)
@@ -386,8 +412,9 @@ def _dyed(rng) -> np.ndarray:
     return hsv_to_rgb(hsv)
 
 
-def fabric(rng, size, *, threads=None, weave=None, warp_color=None, weft_color=None, roughness=None,
-           source=""):
+def fabric(
+    rng, size, *, threads=None, weave=None, warp_color=None, weft_color=None, roughness=None, source=""
+):
     """Woven cloth (plain or 2/2 twill) of round threads with fibre streaks; rough, low F₀."""
     p = _Params("fabric", rng)
     threads = p.integer("threads", threads, 2, 512, draw=(12, 40), even=True)
@@ -423,8 +450,10 @@ def fabric(rng, size, *, threads=None, weave=None, warp_color=None, weft_color=N
     height = 0.25 * thread * np.maximum(z_warp, z_weft)
     shade_warp = (0.55 + 0.45 * prof_x) * (1.0 + 0.15 * fibre_v)
     shade_weft = (0.55 + 0.45 * prof_y) * (1.0 + 0.15 * fibre_u)
-    diffuse = (on_warp[..., None] * warp_color * shade_warp[..., None]
-               + (1 - on_warp[..., None]) * weft_color * shade_weft[..., None])
+    diffuse = (
+        on_warp[..., None] * warp_color * shade_warp[..., None]
+        + (1 - on_warp[..., None]) * weft_color * shade_weft[..., None]
+    )
     diffuse *= (1.0 + 0.08 * slub)[..., None]
     specular = _grey(np.full(u.shape, _f0(1.45)), u.shape)
     rough = roughness * (1.0 + 0.05 * (fibre_u + fibre_v))
@@ -482,8 +511,10 @@ def painted(rng, size, *, metal=None, color=None, coverage=None, rust=None, sour
     rlevel = np.quantile(rust_n, 1.0 - rust) if 0.0 < rust < 1.0 else (-9.0 if rust >= 1 else 9.0)
     rusty = (1.0 - paint) * smoothstep(rlevel - 0.05, rlevel + 0.05, rust_n)
     bare = (1.0 - paint) * (1.0 - rusty)
-    rust_rgb = np.asarray(_RUST[0]) * (1 - smoothstep(-0.3, 0.3, pits))[..., None] + \
-        np.asarray(_RUST[1]) * smoothstep(-0.3, 0.3, pits)[..., None]
+    rust_rgb = (
+        np.asarray(_RUST[0]) * (1 - smoothstep(-0.3, 0.3, pits))[..., None]
+        + np.asarray(_RUST[1]) * smoothstep(-0.3, 0.3, pits)[..., None]
+    )
     diffuse = paint[..., None] * color * (1.0 + 0.04 * pits)[..., None] + rusty[..., None] * rust_rgb
     spec = (paint[..., None] + rusty[..., None]) * _f0(1.5) + bare[..., None] * np.asarray(METALS[name])
     height = 0.003 * paint - 0.001 * rusty * (0.5 + 0.5 * pits) + 0.0002 * pits
@@ -507,15 +538,19 @@ FAMILIES: dict[str, Callable[..., SVBRDF]] = {
 def family_parameters(family: str) -> tuple[str, ...]:
     """Names of the parameters a family accepts."""
     gen = _family(family)
-    return tuple(name for name, par in inspect.signature(gen).parameters.items()
-                 if par.kind is inspect.Parameter.KEYWORD_ONLY and name != "source")
+    return tuple(
+        name
+        for name, par in inspect.signature(gen).parameters.items()
+        if par.kind is inspect.Parameter.KEYWORD_ONLY and name != "source"
+    )
 
 
 def _family(family: str):
     gen = FAMILIES.get(family)
     if gen is None:
-        raise InputError(f"unknown procedural material family {family!r}; choose one of "
-                         f"{', '.join(FAMILIES)}")
+        raise InputError(
+            f"unknown procedural material family {family!r}; choose one of {', '.join(FAMILIES)}"
+        )
     return gen
 
 
@@ -529,8 +564,10 @@ def make_material(family: str, seed: int, size: int = 256, **params) -> SVBRDF:
     allowed = family_parameters(family)
     unknown = sorted(set(params) - set(allowed))
     if unknown:
-        raise InputError(f"procedural material '{family}': unknown parameter(s) {', '.join(unknown)}; "
-                         f"it accepts {', '.join(allowed)}")
+        raise InputError(
+            f"procedural material '{family}': unknown parameter(s) {', '.join(unknown)}; "
+            f"it accepts {', '.join(allowed)}"
+        )
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise InputError(f"procedural material '{family}': seed {seed!r} must be an integer >= 0")
     if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or not 4 <= size <= 8192:

@@ -110,8 +110,17 @@ def _gradient_eval(u, v, gx, gy):
     return np.sqrt(2.0) * (a + sy * (b - a))
 
 
-def fbm(u, v, rng: np.random.Generator, freq=4, octaves: int = 5, gain: float = 0.5,
-        lacunarity: int = 2, kind: str = "gradient", max_freq: float | None = None) -> np.ndarray:
+def fbm(
+    u,
+    v,
+    rng: np.random.Generator,
+    freq=4,
+    octaves: int = 5,
+    gain: float = 0.5,
+    lacunarity: int = 2,
+    kind: str = "gradient",
+    max_freq: float | None = None,
+) -> np.ndarray:
     """Fractal Brownian motion: ``Σ_o gainᵒ · noise(freq·lacunarityᵒ)`` / ``Σ_o gainᵒ``.
 
     ``freq`` is an int or (fu, fv) (anisotropic: e.g. (2, 64) gives streaks along ``u``);

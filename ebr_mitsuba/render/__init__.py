@@ -13,5 +13,13 @@ Importing this package needs a Mitsuba variant only when a function is called.
 from .fast import exemplar_images, render, render_numpy, render_shots, view_shot
 from .inputs import DrLobes, DrMaps, RenderOptions
 
-__all__ = ["DrLobes", "DrMaps", "RenderOptions", "exemplar_images", "render", "render_numpy", "render_shots",
-           "view_shot"]
+__all__ = [
+    "DrLobes",
+    "DrMaps",
+    "RenderOptions",
+    "exemplar_images",
+    "render",
+    "render_numpy",
+    "render_shots",
+    "view_shot",
+]

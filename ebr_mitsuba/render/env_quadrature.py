@@ -104,26 +104,41 @@ def _lobe_sums(tables: _LobeTables, l: mi.Vector3f, guide: _LobeTables | None):
     zero = dr.zeros(mi.Float, dr.width(l))
 
     def body(k, radiance, pdf, qpdf):
-        unit = sg_eval(dr.gather(mi.Vector3f, tables.axis, k), dr.gather(mi.Float, tables.sharpness, k),
-                       1.0, l)
+        unit = sg_eval(
+            dr.gather(mi.Vector3f, tables.axis, k), dr.gather(mi.Float, tables.sharpness, k), 1.0, l
+        )
         radiance = radiance + dr.gather(mi.Color3f, tables.amplitude, k) * unit
         pdf = pdf + dr.gather(mi.Float, tables.pdf_scale, k) * unit
         if guide is not None:
-            g_unit = sg_eval(dr.gather(mi.Vector3f, guide.axis, k), dr.gather(mi.Float, guide.sharpness, k),
-                             1.0, l)
+            g_unit = sg_eval(
+                dr.gather(mi.Vector3f, guide.axis, k), dr.gather(mi.Float, guide.sharpness, k), 1.0, l
+            )
             qpdf = qpdf + dr.gather(mi.Float, guide.pdf_scale, k) * g_unit
         return k + 1, radiance, pdf, qpdf
 
     _, radiance, pdf, qpdf = dr.while_loop(
         (dr.zeros(mi.UInt32, dr.width(l)), dr.zeros(mi.Color3f, dr.width(l)), zero, mi.Float(zero)),
-        lambda k, *_: k < tables.k, body, labels=("k", "radiance", "pdf", "qpdf"),
-        label="ebr_lobe_sum", max_iterations=-1)
+        lambda k, *_: k < tables.k,
+        body,
+        labels=("k", "radiance", "pdf", "qpdf"),
+        label="ebr_lobe_sum",
+        max_iterations=-1,
+    )
     return radiance, pdf, qpdf
 
 
-def _chunk(points: ShadingPoints, guide_points: ShadingPoints, tables: _LobeTables,
-           guide_tables: _LobeTables | None, strategy: int, first: int, count: int, spp: int,
-           fresnel: str, seed: mi.UInt32) -> mi.Color3f:
+def _chunk(
+    points: ShadingPoints,
+    guide_points: ShadingPoints,
+    tables: _LobeTables,
+    guide_tables: _LobeTables | None,
+    strategy: int,
+    first: int,
+    count: int,
+    spp: int,
+    fresnel: str,
+    seed: mi.UInt32,
+) -> mi.Color3f:
     """Contribution of samples ``first … first+count−1`` of one strategy, summed per point."""
     n_pts = points.count
     n_b, n_l = strategy_counts(spp)
@@ -139,14 +154,22 @@ def _chunk(points: ShadingPoints, guide_points: ShadingPoints, tables: _LobeTabl
         gn = dr.gather(mi.Vector3f, guide_points.n, q)
         gv = dr.gather(mi.Vector3f, guide_points.v, q)
         if strategy == BRDF:
-            l, q_own, _ = brdf_sample(gn, gv, dr.gather(mi.Color3f, guide_points.diffuse, q),
-                                      dr.gather(mi.Color3f, guide_points.specular, q),
-                                      dr.gather(mi.Float, guide_points.roughness, q), u0,
-                                      mi.Point2f(u1, u2))
+            l, q_own, _ = brdf_sample(
+                gn,
+                gv,
+                dr.gather(mi.Color3f, guide_points.diffuse, q),
+                dr.gather(mi.Color3f, guide_points.specular, q),
+                dr.gather(mi.Float, guide_points.roughness, q),
+                u0,
+                mi.Point2f(u1, u2),
+            )
         else:
             kk = sampler.sample_index(u0)
-            l = vmf_sample(dr.gather(mi.Vector3f, sampler.axis, kk),
-                           dr.gather(mi.Float, sampler.sharpness, kk), mi.Point2f(u1, u2))
+            l = vmf_sample(
+                dr.gather(mi.Vector3f, sampler.axis, kk),
+                dr.gather(mi.Float, sampler.sharpness, kk),
+                mi.Point2f(u1, u2),
+            )
             q_own = None
     l = dr.detach(l)
 
@@ -173,9 +196,16 @@ def _chunk(points: ShadingPoints, guide_points: ShadingPoints, tables: _LobeTabl
     return acc
 
 
-def quadrature_environment(points: ShadingPoints, lobes: DrLobes, *, spp: int = 64,
-                           fresnel: str = "schlick", max_lanes: int = 1 << 21, seed: int = 0,
-                           guide: tuple[ShadingPoints, DrLobes] | None = None) -> mi.Color3f:
+def quadrature_environment(
+    points: ShadingPoints,
+    lobes: DrLobes,
+    *,
+    spp: int = 64,
+    fresnel: str = "schlick",
+    max_lanes: int = 1 << 21,
+    seed: int = 0,
+    guide: tuple[ShadingPoints, DrLobes] | None = None,
+) -> mi.Color3f:
     """Environment radiance towards ``v`` at every point (``points.count`` lanes), estimated.
 
     ``guide``: the (points, lobes) the directions are drawn from; default detached copies of
@@ -195,6 +225,16 @@ def quadrature_environment(points: ShadingPoints, lobes: DrLobes, *, spp: int = 
     total = dr.zeros(mi.Color3f, count)
     for strategy, n_s in zip((BRDF, LOBE), strategy_counts(spp)):
         for first in range(0, n_s, per_chunk):
-            total = total + _chunk(points, guide_points, tables, guide_tables, strategy, first,
-                                   min(per_chunk, n_s - first), spp, fresnel, seed_op)
+            total = total + _chunk(
+                points,
+                guide_points,
+                tables,
+                guide_tables,
+                strategy,
+                first,
+                min(per_chunk, n_s - first),
+                spp,
+                fresnel,
+                seed_op,
+            )
     return total

@@ -123,10 +123,13 @@ def irradiance_table(lobes: DrLobes, resolution: int, irradiance_nodes: int = 16
     k = pair // texels
     q = pair - k * texels
     mode = dr.ReduceMode.Local
-    value = sg_irradiance(dr.gather(mi.Vector3f, axes, k, mode=mode),
-                          dr.gather(mi.Float, lobes.sharpness, k, mode=mode),
-                          dr.gather(mi.Color3f, lobes.amplitude, k, mode=mode),
-                          dr.gather(mi.Vector3f, n, q), irradiance_nodes)
+    value = sg_irradiance(
+        dr.gather(mi.Vector3f, axes, k, mode=mode),
+        dr.gather(mi.Float, lobes.sharpness, k, mode=mode),
+        dr.gather(mi.Color3f, lobes.amplitude, k, mode=mode),
+        dr.gather(mi.Vector3f, n, q),
+        irradiance_nodes,
+    )
     table = dr.zeros(mi.Color3f, texels)
     dr.scatter_reduce(dr.ReduceOp.Add, table, value, q)
     return table
@@ -146,12 +149,12 @@ def irradiance_lookup(table: mi.Color3f, resolution: int, n: mi.Vector3f) -> mi.
     def at(offset):
         return dr.gather(mi.Color3f, table, base + offset)
 
-    return ((at(0) * (1.0 - tu) + at(1) * tu) * (1.0 - tv)
-            + (at(r) * (1.0 - tu) + at(r + 1) * tu) * tv)
+    return (at(0) * (1.0 - tu) + at(1) * tu) * (1.0 - tv) + (at(r) * (1.0 - tu) + at(r + 1) * tu) * tv
 
 
-def _specular_loop(points: ShadingPoints, axes, lobes: DrLobes, fresnel: str, with_diffuse: bool,
-                   irradiance_nodes: int) -> mi.Color3f:
+def _specular_loop(
+    points: ShadingPoints, axes, lobes: DrLobes, fresnel: str, with_diffuse: bool, irradiance_nodes: int
+) -> mi.Color3f:
     """Σ_k of the specular term (and with ``with_diffuse`` the per-pair diffuse irradiance) per
     point, as a symbolic loop over the lobes: one kernel over the points, no scatter."""
 
@@ -159,23 +162,35 @@ def _specular_loop(points: ShadingPoints, axes, lobes: DrLobes, fresnel: str, wi
         axis = dr.gather(mi.Vector3f, axes, k)
         lam = dr.gather(mi.Float, lobes.sharpness, k)
         amp = dr.gather(mi.Color3f, lobes.amplitude, k)
-        value = specular_sg_pairs(points.n, points.v, points.specular, points.roughness, axis, lam, amp,
-                                  fresnel)
+        value = specular_sg_pairs(
+            points.n, points.v, points.specular, points.roughness, axis, lam, amp, fresnel
+        )
         if with_diffuse:
             irradiance = sg_irradiance(axis, lam, amp, points.n, irradiance_nodes)
             value = value + points.diffuse * (INV_PI * irradiance)
         return k + 1, acc + value
 
     count = points.count
-    _, acc = dr.while_loop((dr.zeros(mi.UInt32, count), dr.zeros(mi.Color3f, count)),
-                           lambda k, acc: k < lobes.num_lobes, body, labels=("k", "acc"),
-                           label="ebr_sg_lobes", max_iterations=-1)
+    _, acc = dr.while_loop(
+        (dr.zeros(mi.UInt32, count), dr.zeros(mi.Color3f, count)),
+        lambda k, acc: k < lobes.num_lobes,
+        body,
+        labels=("k", "acc"),
+        label="ebr_sg_lobes",
+        max_iterations=-1,
+    )
     return acc
 
 
-def sg_environment(points: ShadingPoints, lobes: DrLobes, *, fresnel: str = "schlick",
-                   irradiance_nodes: int = 16, table_resolution: int = 0,
-                   lobe_loop: bool = False) -> mi.Color3f:
+def sg_environment(
+    points: ShadingPoints,
+    lobes: DrLobes,
+    *,
+    fresnel: str = "schlick",
+    irradiance_nodes: int = 16,
+    table_resolution: int = 0,
+    lobe_loop: bool = False,
+) -> mi.Color3f:
     """Environment radiance towards ``v`` at every point (``points.count`` lanes), closed form.
 
     Arranged for the reverse pass (measured in the SG-extraction loop, where it halved the time):

@@ -50,27 +50,38 @@ def _require_variant() -> None:
         ensure_variant()
 
 
-def view_shot(camera, light=None, intensity: float = DEFAULT_FLASH_INTENSITY, env: bool = True,
-              name: str = "view") -> Shot:
+def view_shot(
+    camera, light=None, intensity: float = DEFAULT_FLASH_INTENSITY, env: bool = True, name: str = "view"
+) -> Shot:
     """A shot from an arbitrary ``camera`` position with an optional point ``light`` (positions in
     world units, z > 0 above the sample), for rendering losses over random view/light pairs."""
-    return Shot(name, tuple(float(c) for c in camera), NEAR_FOV,
-                None if light is None else tuple(float(c) for c in light), float(intensity), env)
+    return Shot(
+        name,
+        tuple(float(c) for c in camera),
+        NEAR_FOV,
+        None if light is None else tuple(float(c) for c in light),
+        float(intensity),
+        env,
+    )
 
 
 def _check_shot(shot: Shot) -> None:
     if not isinstance(shot, Shot):
         raise InputError(f"render: shot must be an ebr_mitsuba.geometry.Shot (got {type(shot).__name__})")
     if not float(shot.camera[2]) > 0.0:
-        raise InputError(f"render: shot '{shot.name}' has its camera at z = {shot.camera[2]}, not above "
-                         f"the sample plane; place the camera at z > 0")
+        raise InputError(
+            f"render: shot '{shot.name}' has its camera at z = {shot.camera[2]}, not above "
+            f"the sample plane; place the camera at z > 0"
+        )
     if shot.flash is not None and not (np.isfinite(shot.flash_intensity) and shot.flash_intensity >= 0):
-        raise InputError(f"render: shot '{shot.name}' has flash intensity {shot.flash_intensity}; "
-                         f"give a finite value >= 0")
+        raise InputError(
+            f"render: shot '{shot.name}' has flash intensity {shot.flash_intensity}; give a finite value >= 0"
+        )
 
 
-def point_light(points: ShadingPoints, positions: mi.Vector3f, light, intensity,
-                fresnel: str = "schlick") -> mi.Color3f:
+def point_light(
+    points: ShadingPoints, positions: mi.Vector3f, light, intensity, fresnel: str = "schlick"
+) -> mi.Color3f:
     """``f(l, v) · max(n·l, 0) · I / d²`` per point; ``light`` a 3-vector, ``intensity`` I [W/sr]."""
     to_light = light - positions
     dist2 = dr.squared_norm(to_light)
@@ -79,19 +90,41 @@ def point_light(points: ShadingPoints, positions: mi.Vector3f, light, intensity,
     return fcos * (intensity / dr.maximum(dist2, 1e-12))
 
 
-def environment(points: ShadingPoints, lobes: DrLobes, options: RenderOptions,
-                guide: tuple[ShadingPoints, DrLobes] | None = None) -> mi.Color3f:
+def environment(
+    points: ShadingPoints,
+    lobes: DrLobes,
+    options: RenderOptions,
+    guide: tuple[ShadingPoints, DrLobes] | None = None,
+) -> mi.Color3f:
     """The environment term (without ``env_scale``) in the selected mode."""
     if options.mode == "sg":
-        return sg_environment(points, lobes, fresnel=options.fresnel,
-                              irradiance_nodes=options.irradiance_nodes,
-                              table_resolution=options.irradiance_table, lobe_loop=options.lobe_loop)
-    return quadrature_environment(points, lobes, spp=options.spp, fresnel=options.fresnel,
-                                  max_lanes=options.max_lanes, seed=options.seed, guide=guide)
+        return sg_environment(
+            points,
+            lobes,
+            fresnel=options.fresnel,
+            irradiance_nodes=options.irradiance_nodes,
+            table_resolution=options.irradiance_table,
+            lobe_loop=options.lobe_loop,
+        )
+    return quadrature_environment(
+        points,
+        lobes,
+        spp=options.spp,
+        fresnel=options.fresnel,
+        max_lanes=options.max_lanes,
+        seed=options.seed,
+        guide=guide,
+    )
 
 
-def render(maps: DrMaps, lobes: DrLobes, shot: Shot, options: RenderOptions | None = None, *,
-           guide: tuple[DrMaps, DrLobes] | None = None) -> mi.TensorXf:
+def render(
+    maps: DrMaps,
+    lobes: DrLobes,
+    shot: Shot,
+    options: RenderOptions | None = None,
+    *,
+    guide: tuple[DrMaps, DrLobes] | None = None,
+) -> mi.TensorXf:
     """Render ``maps`` under ``lobes`` and the shot's point light: (H, W, 3) ``mi.TensorXf``.
 
     Differentiable w.r.t. every map tensor and lobe array. ``guide`` (quadrature mode only): the
@@ -102,15 +135,22 @@ def render(maps: DrMaps, lobes: DrLobes, shot: Shot, options: RenderOptions | No
     options = options or RenderOptions()
     _check_shot(shot)
     if not isinstance(maps, DrMaps) or not isinstance(lobes, DrLobes):
-        raise InputError("render: give the maps as DrMaps and the lobes as DrLobes "
-                         "(DrMaps.from_numpy(svbrdf), DrLobes.from_env(env))")
+        raise InputError(
+            "render: give the maps as DrMaps and the lobes as DrLobes "
+            "(DrMaps.from_numpy(svbrdf), DrLobes.from_env(env))"
+        )
     h, w = maps.shape
     camera = opaque_point(shot.camera)
     points, positions = points_from_maps(maps, camera, options.window)
     image = dr.zeros(mi.Color3f, h * w)
     if shot.flash is not None:
-        image = image + point_light(points, positions, opaque_point(shot.flash),
-                                    dr.opaque(mi.Float, float(shot.flash_intensity)), options.fresnel)
+        image = image + point_light(
+            points,
+            positions,
+            opaque_point(shot.flash),
+            dr.opaque(mi.Float, float(shot.flash_intensity)),
+            options.fresnel,
+        )
     if shot.env and lobes.num_lobes > 0:
         guide_pts = None
         if guide is not None:
@@ -122,8 +162,9 @@ def render(maps: DrMaps, lobes: DrLobes, shot: Shot, options: RenderOptions | No
     return mi.TensorXf(dr.ravel(image), (h, w, 3))
 
 
-def render_shots(maps: DrMaps, lobes: DrLobes, shots: Sequence[Shot],
-                 options: RenderOptions | None = None) -> list[mi.TensorXf]:
+def render_shots(
+    maps: DrMaps, lobes: DrLobes, shots: Sequence[Shot], options: RenderOptions | None = None
+) -> list[mi.TensorXf]:
     """:func:`render` of one set of maps for several shots, sharing the work between shots from
     the same camera: their shading points and environment term are computed once (a flash /
     no-flash pair costs one environment term, not two). Same values as calling :func:`render`
@@ -145,8 +186,13 @@ def render_shots(maps: DrMaps, lobes: DrLobes, shots: Sequence[Shot],
         points, positions, env = per_camera[key]
         image = dr.zeros(mi.Color3f, h * w)
         if shot.flash is not None:
-            image = image + point_light(points, positions, opaque_point(shot.flash),
-                                        dr.opaque(mi.Float, float(shot.flash_intensity)), options.fresnel)
+            image = image + point_light(
+                points,
+                positions,
+                opaque_point(shot.flash),
+                dr.opaque(mi.Float, float(shot.flash_intensity)),
+                options.fresnel,
+            )
         if shot.env and lobes.num_lobes > 0:
             if env is None:
                 env = environment(points, lobes, options) * dr.opaque(mi.Float, float(options.env_scale))
@@ -156,8 +202,15 @@ def render_shots(maps: DrMaps, lobes: DrLobes, shots: Sequence[Shot],
     return out
 
 
-def render_numpy(svbrdf: SVBRDF, env: SGEnvironment | None, shot: Shot, mode: str = "sg",
-                 spp: int = 64, env_scale: float = 1.0, **options) -> np.ndarray:
+def render_numpy(
+    svbrdf: SVBRDF,
+    env: SGEnvironment | None,
+    shot: Shot,
+    mode: str = "sg",
+    spp: int = 64,
+    env_scale: float = 1.0,
+    **options,
+) -> np.ndarray:
     """numpy convenience: (H, W, 3) float32 render of ``svbrdf`` under ``env`` (None: no
     environment). Extra keyword arguments go to :class:`RenderOptions`."""
     _require_variant()
@@ -168,9 +221,16 @@ def render_numpy(svbrdf: SVBRDF, env: SGEnvironment | None, shot: Shot, mode: st
     return np.asarray(image.numpy(), dtype=np.float32)
 
 
-def exemplar_images(env_lobes: DrLobes | SGEnvironment, roughness_list: Sequence[float], height: int,
-                    width: int, shot: Shot | None = None, mode: str = "sg", spp: int = 64,
-                    options: RenderOptions | None = None) -> list[mi.TensorXf]:
+def exemplar_images(
+    env_lobes: DrLobes | SGEnvironment,
+    roughness_list: Sequence[float],
+    height: int,
+    width: int,
+    shot: Shot | None = None,
+    mode: str = "sg",
+    spp: int = 64,
+    options: RenderOptions | None = None,
+) -> list[mi.TensorXf]:
     """Environment exemplars (``docs/conventions.md``, "Exemplars"): renders of the exemplar
     material (:mod:`ebr_mitsuba.exemplar`: diffuse 0.1, specular 0.2 grey, roughness r, flat
     normal) under the lobes, flash off, one (H, W, 3) ``mi.TensorXf`` per roughness,
@@ -186,8 +246,9 @@ def exemplar_images(env_lobes: DrLobes | SGEnvironment, roughness_list: Sequence
     roughness = np.asarray(roughness_list, dtype=np.float32).reshape(-1)
     in_range = roughness.size > 0 and np.all(np.isfinite(roughness)) and roughness.min() >= 0
     if not (in_range and roughness.max() <= 1):
-        raise InputError(f"exemplar_images: roughness values {roughness.tolist()} must be a non-empty "
-                         f"list in [0, 1]")
+        raise InputError(
+            f"exemplar_images: roughness values {roughness.tolist()} must be a non-empty list in [0, 1]"
+        )
     options = options or RenderOptions(mode=mode, spp=spp)
     shot = shot or near_shot(False)
     _check_shot(shot)

@@ -41,8 +41,10 @@ FRESNEL_MODES = ("schlick", "none")
 
 def _tensor_shape(t, name: str) -> tuple[int, ...]:
     if not isinstance(t, mi.TensorXf):
-        raise InputError(f"DrMaps: {name} must be a mi.TensorXf (got {type(t).__name__}); "
-                         f"build it with DrMaps.from_numpy or mi.TensorXf(array)")
+        raise InputError(
+            f"DrMaps: {name} must be a mi.TensorXf (got {type(t).__name__}); "
+            f"build it with DrMaps.from_numpy or mi.TensorXf(array)"
+        )
     return tuple(int(v) for v in t.shape)
 
 
@@ -84,16 +86,26 @@ class DrMaps:
         )
 
     @staticmethod
-    def uniform(height: int, width: int, diffuse=EXEMPLAR_DIFFUSE, specular=EXEMPLAR_SPECULAR, roughness=0.5,
-                normal=(0.0, 0.0, 1.0)) -> DrMaps:
+    def uniform(
+        height: int,
+        width: int,
+        diffuse=EXEMPLAR_DIFFUSE,
+        specular=EXEMPLAR_SPECULAR,
+        roughness=0.5,
+        normal=(0.0, 0.0, 1.0),
+    ) -> DrMaps:
         """A spatially constant material (by default the exemplar material of
         :mod:`ebr_mitsuba.exemplar`, roughness 0.5)."""
         return DrMaps.from_numpy(SVBRDF.uniform(height, width, diffuse, specular, roughness, normal))
 
     def params(self) -> dict[str, mi.TensorXf]:
         """The four tensors by name (for an optimiser)."""
-        return {"normal": self.normal, "diffuse": self.diffuse, "specular": self.specular,
-                "roughness": self.roughness}
+        return {
+            "normal": self.normal,
+            "diffuse": self.diffuse,
+            "specular": self.specular,
+            "roughness": self.roughness,
+        }
 
     def detach(self) -> DrMaps:
         return DrMaps(*(dr.detach(t) for t in (self.normal, self.diffuse, self.specular, self.roughness)))
@@ -107,8 +119,9 @@ def _as_vector(value, kind, name: str):
         return dr.unravel(kind, value.array)
     if isinstance(value, (mi.Vector3f, mi.Color3f, mi.Point3f)):
         return kind(value)
-    raise InputError(f"DrLobes: {name} must be a {kind.__name__} or a (K, 3) mi.TensorXf "
-                     f"(got {type(value).__name__})")
+    raise InputError(
+        f"DrLobes: {name} must be a {kind.__name__} or a (K, 3) mi.TensorXf (got {type(value).__name__})"
+    )
 
 
 @dataclass
@@ -128,15 +141,18 @@ class DrLobes:
         self.amplitude = _as_vector(self.amplitude, mi.Color3f, "amplitude")
         if isinstance(self.sharpness, mi.TensorXf):
             if self.sharpness.ndim != 1:
-                raise InputError(f"DrLobes: sharpness tensor has shape {tuple(self.sharpness.shape)}; "
-                                 f"expected (K,)")
+                raise InputError(
+                    f"DrLobes: sharpness tensor has shape {tuple(self.sharpness.shape)}; expected (K,)"
+                )
             self.sharpness = self.sharpness.array
         if not isinstance(self.sharpness, mi.Float):
             raise InputError(f"DrLobes: sharpness must be a mi.Float (got {type(self.sharpness).__name__})")
         k = dr.width(self.axis)
         if dr.width(self.sharpness) != k or dr.width(self.amplitude) != k:
-            raise InputError(f"DrLobes: {k} axes, {dr.width(self.sharpness)} sharpness values and "
-                             f"{dr.width(self.amplitude)} amplitudes; give one of each per lobe")
+            raise InputError(
+                f"DrLobes: {k} axes, {dr.width(self.sharpness)} sharpness values and "
+                f"{dr.width(self.amplitude)} amplitudes; give one of each per lobe"
+            )
 
     @property
     def num_lobes(self) -> int:
@@ -147,9 +163,11 @@ class DrLobes:
         """From numpy arrays (K, 3), (K,), (K, 3) (no gradients, no validation)."""
         a = np.asarray(axis, np.float32).reshape(-1, 3)
         m = np.asarray(amplitude, np.float32).reshape(-1, 3)
-        return DrLobes(mi.Vector3f(a[:, 0], a[:, 1], a[:, 2]),
-                       mi.Float(np.asarray(sharpness, np.float32).reshape(-1)),
-                       mi.Color3f(m[:, 0], m[:, 1], m[:, 2]))
+        return DrLobes(
+            mi.Vector3f(a[:, 0], a[:, 1], a[:, 2]),
+            mi.Float(np.asarray(sharpness, np.float32).reshape(-1)),
+            mi.Color3f(m[:, 0], m[:, 1], m[:, 2]),
+        )
 
     @staticmethod
     def from_env(env: SGEnvironment) -> DrLobes:
@@ -218,18 +236,27 @@ class RenderOptions:
         if self.mode not in MODES:
             raise ConfigError(f"render options: mode {self.mode!r} is unknown; use one of {', '.join(MODES)}")
         if self.fresnel not in FRESNEL_MODES:
-            raise ConfigError(f"render options: fresnel {self.fresnel!r} is unknown; use one of "
-                              f"{', '.join(FRESNEL_MODES)}")
+            raise ConfigError(
+                f"render options: fresnel {self.fresnel!r} is unknown; use one of {', '.join(FRESNEL_MODES)}"
+            )
         if self.window is not None:
             if len(tuple(self.window)) != 4 or any(int(v) != v or v < 0 for v in self.window):
-                raise ConfigError(f"render options: window must be (row0, col0, full_h, full_w), "
-                                  f"non-negative integers (got {self.window!r})")
+                raise ConfigError(
+                    f"render options: window must be (row0, col0, full_h, full_w), "
+                    f"non-negative integers (got {self.window!r})"
+                )
             object.__setattr__(self, "window", tuple(int(v) for v in self.window))
         if isinstance(self.irradiance_table, (int, np.integer)) and 0 < self.irradiance_table < 2:
-            raise ConfigError(f"render options: irradiance_table must be 0 or >= 2 "
-                              f"(got {self.irradiance_table})")
-        for name, lo in (("spp", 1), ("irradiance_nodes", 1), ("max_lanes", 1), ("seed", 0),
-                         ("irradiance_table", 0)):
+            raise ConfigError(
+                f"render options: irradiance_table must be 0 or >= 2 (got {self.irradiance_table})"
+            )
+        for name, lo in (
+            ("spp", 1),
+            ("irradiance_nodes", 1),
+            ("max_lanes", 1),
+            ("seed", 0),
+            ("irradiance_table", 0),
+        ):
             value = getattr(self, name)
             if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < lo:
                 raise ConfigError(f"render options: {name} must be an integer >= {lo} (got {value!r})")

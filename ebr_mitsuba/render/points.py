@@ -38,9 +38,16 @@ class ShadingPoints:
     flat_normal: bool = False
 
     def detach(self) -> ShadingPoints:
-        return ShadingPoints(dr.detach(self.n), dr.detach(self.v), dr.detach(self.diffuse),
-                             dr.detach(self.specular), dr.detach(self.roughness), self.pixel,
-                             self.count, self.flat_normal)
+        return ShadingPoints(
+            dr.detach(self.n),
+            dr.detach(self.v),
+            dr.detach(self.diffuse),
+            dr.detach(self.specular),
+            dr.detach(self.roughness),
+            self.pixel,
+            self.count,
+            self.flat_normal,
+        )
 
 
 def opaque_point(xyz) -> mi.Vector3f:
@@ -59,8 +66,10 @@ def check_window(window, height: int, width: int) -> tuple[int, int, int, int] |
     except (TypeError, ValueError):
         raise InputError(f"render window {window!r}: give (row0, col0, full_height, full_width)") from None
     if not (0 <= r0 and 0 <= c0 and r0 + height <= fh and c0 + width <= fw):
-        raise InputError(f"render window {window!r}: a {height}x{width} block at row {r0}, column {c0} "
-                         f"does not fit a {fh}x{fw} grid")
+        raise InputError(
+            f"render window {window!r}: a {height}x{width} block at row {r0}, column {c0} "
+            f"does not fit a {fh}x{fw} grid"
+        )
     return r0, c0, fh, fw
 
 

@@ -69,8 +69,13 @@ def oracle_constant(truth: SVBRDF) -> SVBRDF:
         mean = a.reshape(-1, channels).mean(axis=0) if channels else np.array(a.mean())
         return np.broadcast_to(mean.astype(np.float32), shape + ((channels,) if channels else ())).copy()
 
-    return SVBRDF(flat(n[None], 3), flat(truth.diffuse, 3), flat(truth.specular, 3),
-                  flat(truth.roughness, None), source=f"oracle constant of {truth.source}")
+    return SVBRDF(
+        flat(n[None], 3),
+        flat(truth.diffuse, 3),
+        flat(truth.specular, 3),
+        flat(truth.roughness, None),
+        source=f"oracle constant of {truth.source}",
+    )
 
 
 __all__ = ["MeanMaps", "oracle_constant"]

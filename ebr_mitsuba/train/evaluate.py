@@ -98,15 +98,20 @@ def estimate_predictor(bundle, data: str | Path, refine=None) -> Callable[[dict,
         with tempfile.TemporaryDirectory(prefix="ebr-eval-") as tmp:
             out = Path(tmp) / "estimate"
             cfg = EstimateConfig(
-                flash=str(shots["flash"]), noflash=str(shots["noflash"]),
+                flash=str(shots["flash"]),
+                noflash=str(shots["noflash"]),
                 far_flash=str(shots["far_flash"]) if "far_flash" in shots else None,
                 far_noflash=str(shots["far_noflash"]) if "far_noflash" in shots else None,
-                out=str(out), refine=refine, flash_intensity=intensity,
+                out=str(out),
+                refine=refine,
+                flash_intensity=intensity,
             )
             run_estimate(cfg, bundle=bundle)
             if refine.steps > 0:
-                return {"estimate": load_material_dir(out / "maps_network"),
-                        "estimate + refinement": load_material_dir(out / "maps")}
+                return {
+                    "estimate": load_material_dir(out / "maps_network"),
+                    "estimate + refinement": load_material_dir(out / "maps"),
+                }
             return {"estimate": load_material_dir(out / "maps")}
 
     return run
@@ -127,8 +132,14 @@ def evaluate(
     progress=None,
 ) -> dict:
     """Per-sample and averaged metrics (:mod:`.metrics`) of ``predictor`` on the data set ``data``."""
-    return evaluate_many(lambda item, names: {"": predictor(item, names)}, data, limit=limit, seed=seed,
-                         intensity=intensity, progress=progress)[""]
+    return evaluate_many(
+        lambda item, names: {"": predictor(item, names)},
+        data,
+        limit=limit,
+        seed=seed,
+        intensity=intensity,
+        progress=progress,
+    )[""]
 
 
 def evaluate_many(
@@ -207,6 +218,12 @@ def oracle_predictor(item: dict, names: list[str]) -> SVBRDF:
 
 
 __all__ = [
-    "estimate_predictor", "evaluate", "evaluate_many", "group_means", "material_class", "material_group",
-    "model_predictor", "oracle_predictor",
+    "estimate_predictor",
+    "evaluate",
+    "evaluate_many",
+    "group_means",
+    "material_class",
+    "material_group",
+    "model_predictor",
+    "oracle_predictor",
 ]

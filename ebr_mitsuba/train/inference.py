@@ -247,8 +247,14 @@ class PassInputs:
         def cut(a):
             return None if a is None else np.ascontiguousarray(a[..., sl[0], sl[1], :])
 
-        return PassInputs(cut(self.noflash), cut(self.flash_only), cut(self.env_exemplars),
-                          cut(self.point_exemplars), [cut(p) for p in self.photos], cut(self.far_flash_only))
+        return PassInputs(
+            cut(self.noflash),
+            cut(self.flash_only),
+            cut(self.env_exemplars),
+            cut(self.point_exemplars),
+            [cut(p) for p in self.photos],
+            cut(self.far_flash_only),
+        )
 
 
 def _check_shots(bundle: ModelBundle, flash, noflash, far_flash, far_noflash, size: int | None):
@@ -298,8 +304,9 @@ def predict_lighting(
         fo = flash
     else:
         report(0, 3, "lighting net")
-        ex, fo, env, t = estimate_lighting(bundle, flash, nf, *far, extract_config=extract_config,
-                                           progress=report)
+        ex, fo, env, t = estimate_lighting(
+            bundle, flash, nf, *far, extract_config=extract_config, progress=report
+        )
         exemplars = list(ex)
         timings.update(t)
         if near_far:
@@ -312,8 +319,9 @@ def predict_lighting(
     return Lighting(size, env, exemplars, fo, far_fo, {"env": env_sel, "point": point_sel}, timings)
 
 
-def grid_pass_inputs(bundle: ModelBundle, lighting: Lighting, flash, noflash, far_flash=None,
-                     far_noflash=None) -> PassInputs:
+def grid_pass_inputs(
+    bundle: ModelBundle, lighting: Lighting, flash, noflash, far_flash=None, far_noflash=None
+) -> PassInputs:
     """The cascade's inputs at the grid: the photos, the lighting net's flash-only image and the
     selected exemplars (black no-flash photo and environment exemplars in flash-only mode)."""
     size = bundle.resolution
@@ -387,16 +395,24 @@ def predict(
     selection (ablation). Same as :func:`predict_lighting` followed by one :func:`cascade_pass`
     over the grid.
     """
-    lighting = predict_lighting(bundle, flash, noflash, far_flash, far_noflash,
-                                extract_config=extract_config, fixed_roughness=fixed_roughness)
+    lighting = predict_lighting(
+        bundle,
+        flash,
+        noflash,
+        far_flash,
+        far_noflash,
+        extract_config=extract_config,
+        fixed_roughness=fixed_roughness,
+    )
     t0 = time.perf_counter()
     inputs = grid_pass_inputs(bundle, lighting, flash, noflash, far_flash, far_noflash)
     out = cascade_pass(bundle, inputs, lighting.env)
     maps = out.maps.to_svbrdf(0, source="ebr_mitsuba network")
     timings = dict(lighting.timings)
     timings["cascade"] = time.perf_counter() - t0
-    return Prediction(maps, lighting.env, lighting.env_exemplars, lighting.flash_only,
-                      dict(lighting.selection), timings)
+    return Prediction(
+        maps, lighting.env, lighting.env_exemplars, lighting.flash_only, dict(lighting.selection), timings
+    )
 
 
 __all__ = [

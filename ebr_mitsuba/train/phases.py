@@ -269,9 +269,7 @@ def build_phase(plan: PhasePlan, inputs: PhaseInputs, bundle, caches) -> Phase:
     if name == "refinement":
         return CascadePhase(plan, inputs, cascade, stage=1, cache=cache, forward=full_forward)
     keys = FIRST_STAGE_KEYS["joint" if cascade.joint_net is not None else name]
-    return CascadePhase(
-        plan, inputs, cascade, stage=1, cache=cache, forward=first_stage_forward, keys=keys
-    )
+    return CascadePhase(plan, inputs, cascade, stage=1, cache=cache, forward=first_stage_forward, keys=keys)
 
 
 __all__ = [

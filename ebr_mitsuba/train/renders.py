@@ -65,8 +65,9 @@ def _flash_render(maps: Maps, far: bool, intensity: float, options) -> torch.Ten
 
     from ..nets.drwrap import render_maps
 
-    shot = dataclasses.replace(far_shot(True) if far else near_shot(True), flash_intensity=float(intensity),
-                               env=False)
+    shot = dataclasses.replace(
+        far_shot(True) if far else near_shot(True), flash_intensity=float(intensity), env=False
+    )
     return render_maps(maps, None, shot, options)
 
 
@@ -186,8 +187,9 @@ def cascade_forward(
         point_exemplars if c.use_exemplars else None,
         render_diffuse_flash=diffuse_flash_renderer(flash_intensity, window, options),
         photos=photos,
-        render_photos=photo_renderer(lobes, flash_only, far_flash_only, c.num_photos, window=window,
-                                     scales=scales, options=options),
+        render_photos=photo_renderer(
+            lobes, flash_only, far_flash_only, c.num_photos, window=window, scales=scales, options=options
+        ),
     )
 
 
