@@ -102,6 +102,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..geometry import Shot
+from ..metrics import image_errors
 from ..sgenv import SGEnvironment
 from ..svbrdf import SVBRDF
 
@@ -280,17 +281,6 @@ def rerender_shots(
         opts = render_options(mode, spp, irradiance_table)
         images = render_shots(DrMaps.from_numpy(maps), lobes, shots, opts)
         return [np.asarray(im.numpy(), dtype=np.float32) for im in images]
-
-
-def image_errors(render: np.ndarray, target: np.ndarray, mask: np.ndarray) -> dict:
-    """RMSE (linear) and relative RMSE (÷ RMS of the target) over the unmasked pixels."""
-    m = mask.astype(bool)
-    if not m.any():
-        return {"rmse": float("nan"), "rel_rmse": float("nan")}
-    diff = (render - target)[m]
-    rmse = float(np.sqrt(np.mean(diff.astype(np.float64) ** 2)))
-    rms = float(np.sqrt(np.mean(target[m].astype(np.float64) ** 2)))
-    return {"rmse": rmse, "rel_rmse": rmse / rms if rms > 0 else float("nan")}
 
 
 def rerender_errors(
