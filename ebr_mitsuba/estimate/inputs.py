@@ -57,6 +57,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..colour import LUMINANCE
 from ..errors import InputError
 from ..geometry import NEAR_FOV
 from ..imageio import EXR_SUFFIXES, HDR_SUFFIXES, IMAGE_SUFFIXES, read_image, resize_area
@@ -219,7 +220,7 @@ def read_shot(path: str | Path, name: str) -> tuple[np.ndarray, float | None]:
 
 def luminance(image: np.ndarray) -> np.ndarray:
     """Rec. 709 luminance (H, W) of a linear (H, W, 3) image."""
-    return image @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    return image @ LUMINANCE.astype(np.float32)
 
 
 def _centre_crop(image: np.ndarray) -> np.ndarray:
