@@ -124,7 +124,7 @@ def _hwc(t: torch.Tensor) -> np.ndarray:
 
 def _structured(image: np.ndarray) -> bool:
     """True when the image's luminance varies (the selection's score needs structure)."""
-    from ..extract.select import LUMINANCE
+    from ..colour import LUMINANCE
 
     lum = np.asarray(image, np.float64) @ LUMINANCE
     return bool(lum.max() > 0.0 and lum.max() > lum.min())
