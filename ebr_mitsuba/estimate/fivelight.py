@@ -74,9 +74,12 @@ from .inputs import (
     HIGHLIGHT_WARN,
     MAX_SATURATED,
     WARN_SATURATED,
+    centre_crop,
+    clip_negatives,
     highlight_position,
     read_exif,
     read_shot,
+    saturation_mask,
 )
 from .resample import DEFAULT_MAX_SIZE, MIN_INPUT_SIZE, model_grid, working_size
 
@@ -387,14 +390,8 @@ def load_photos(setup: LightSetup, saturation_level: float | None, warnings: lis
         )
     if h != w:
         warnings.append(f"frame {w}x{h} is not square: centre-cropped to the sample square")
-        s = min(h, w)
-        i, j = (h - s) // 2, (w - s) // 2
-        images = {k: np.ascontiguousarray(v[i : i + s, j : j + s]) for k, v in images.items()}
-    saturated = np.zeros(next(iter(images.values())).shape[:2], bool)
-    for k, img in images.items():
-        level = levels[k] if levels[k] is not None else saturation_level
-        if level is not None:
-            saturated |= np.any(img >= level, axis=-1)
+        images = {k: np.ascontiguousarray(centre_crop(v)) for k, v in images.items()}
+    saturated = saturation_mask(images, levels, saturation_level)
     frac = float(saturated.mean())
     if frac > MAX_SATURATED:
         raise InputError(
@@ -403,11 +400,7 @@ def load_photos(setup: LightSetup, saturation_level: float | None, warnings: lis
         )
     if frac > WARN_SATURATED:
         warnings.append(f"{frac:.1%} of the pixels are saturated; they are left out of the errors")
-    for k, img in images.items():
-        if float(img.min()) < 0:
-            if float(img.min()) < -1e-3 * max(float(img.max()), 1e-12):
-                warnings.append(f"{k}: negative pixel values clipped to 0")
-            images[k] = np.maximum(img, 0.0)
+    clip_negatives(images, warnings)
     exposure = _exposures(paths, any(v is not None for v in levels.values()), warnings)
     images = {k: (v * np.float32(exposure[k]["factor"])).astype(np.float32) for k, v in images.items()}
     return LightPhotos(images, saturated, exposure, (int(h), int(w)))
@@ -493,7 +486,6 @@ def run_fivelight(
     loaded (None: from ``cfg.checkpoint``, else the shipped one)."""
     from .pipeline import ESTIMATE_FORMAT, check_out_dir
     from .refine import ShotTarget, rerender_errors
-    from .report import write_report
 
     log = log or (lambda msg: None)
     timings: dict[str, float] = {}
@@ -603,12 +595,7 @@ def run_fivelight(
         reference = intensities[setup.shots[0].name][0]
         files += outputs.write_novel(maps, None, reference, tmp, float(setup.shots[0].camera[2]))
         stage("outputs", t0)
-        t0 = time.perf_counter()
-        summary["files"] = sorted(files) + ["estimate.json", "report.html"]
-        write_report(tmp, summary)
-        stage("report", t0)
-        summary["total_seconds"] = round(time.perf_counter() - t_start, 3)
-        (tmp / "estimate.json").write_text(json.dumps(summary, indent=1, default=float) + "\n")
+        outputs.write_report_and_summary(tmp, summary, files, t_start, stage)
     return summary
 
 

@@ -223,11 +223,33 @@ def luminance(image: np.ndarray) -> np.ndarray:
     return image @ LUMINANCE.astype(np.float32)
 
 
-def _centre_crop(image: np.ndarray) -> np.ndarray:
+def centre_crop(image: np.ndarray) -> np.ndarray:
+    """The centred square of a (H, W, …) frame (the sample fills the square)."""
     h, w = image.shape[:2]
     s = min(h, w)
     i, j = (h - s) // 2, (w - s) // 2
     return image[i : i + s, j : j + s]
+
+
+def saturation_mask(images: dict[str, np.ndarray], levels: dict, default_level: float | None) -> np.ndarray:
+    """(H, W) True where any shot reaches its saturation level (``levels[name]``, else
+    ``default_level``; None: never saturated) in any channel, on the values as stored."""
+    saturated = np.zeros(next(iter(images.values())).shape[:2], bool)
+    for k, img in images.items():
+        level = levels[k] if levels[k] is not None else default_level
+        if level is not None:
+            saturated |= np.any(img >= level, axis=-1)
+    return saturated
+
+
+def clip_negatives(images: dict[str, np.ndarray], warnings: list[str]) -> None:
+    """Negative pixel values set to 0 in place of each shot (a warning when they are more than
+    rounding: below −1e-3 × the shot's maximum)."""
+    for k, img in images.items():
+        if float(img.min()) < 0:
+            if float(img.min()) < -1e-3 * max(float(img.max()), 1e-12):
+                warnings.append(f"{k}: negative pixel values clipped to 0")
+            images[k] = np.maximum(img, 0.0)
 
 
 def _blur3(a: np.ndarray) -> np.ndarray:
@@ -567,14 +589,10 @@ def load_inputs(
         warnings.append(
             f"frame {source_size[1]}x{source_size[0]} is not square: centre-cropped to the sample square"
         )
-        images = {k: np.ascontiguousarray(_centre_crop(v)) for k, v in images.items()}
+        images = {k: np.ascontiguousarray(centre_crop(v)) for k, v in images.items()}
 
     # Saturation, on the values as stored (before exposure scaling).
-    saturated = np.zeros(images["flash"].shape[:2], bool)
-    for k, img in images.items():
-        level = levels[k] if levels[k] is not None else saturation_level
-        if level is not None:
-            saturated |= np.any(img >= level, axis=-1)
+    saturated = saturation_mask(images, levels, saturation_level)
     frac = float(saturated.mean())
     if frac > MAX_SATURATED:
         raise InputError(
@@ -585,11 +603,7 @@ def load_inputs(
         warnings.append(
             f"{frac:.1%} of the pixels are saturated; they are left out of the refinement and the errors"
         )
-    for k, img in images.items():
-        if float(img.min()) < 0:
-            if float(img.min()) < -1e-3 * max(float(img.max()), 1e-12):
-                warnings.append(f"{k}: negative pixel values clipped to 0")
-            images[k] = np.maximum(img, 0.0)
+    clip_negatives(images, warnings)
 
     ldr = any(levels[k] is not None for k in images)
     exposure = _exposures(raw_paths, exposure_ratio, ldr, warnings)
@@ -653,6 +667,9 @@ def check_shot_flags(flash, noflash, far_flash, far_noflash, exposure_ratio=None
 
 __all__ = [
     "Inputs",
+    "centre_crop",
+    "clip_negatives",
+    "saturation_mask",
     "SHOT_NAMES",
     "DEFAULT_FOV",
     "DEFAULT_MAX_SHIFT",

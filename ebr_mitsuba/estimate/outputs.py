@@ -248,7 +248,25 @@ def write_exemplars(out: Path, prediction) -> list[str]:
     return files
 
 
+def write_report_and_summary(out: Path, summary: dict, files: list[str], t_start: float, stage) -> None:
+    """Last in every estimate directory: ``report.html`` and ``estimate.json`` (which list every
+    file, so they come after the others); ``stage("report", t0)`` times the report and
+    ``summary["total_seconds"]`` is set from ``t_start`` (``time.perf_counter``)."""
+    import json
+    import time
+
+    from .report import write_report
+
+    t0 = time.perf_counter()
+    summary["files"] = sorted(files) + ["estimate.json", "report.html"]
+    write_report(out, summary)
+    stage("report", t0)
+    summary["total_seconds"] = round(time.perf_counter() - t_start, 3)
+    (out / "estimate.json").write_text(json.dumps(summary, indent=1, default=float) + "\n")
+
+
 __all__ = [
+    "write_report_and_summary",
     "NOVEL_LIGHTS",
     "PREVIEW_SIZE",
     "RESIDUAL_SCALE",

@@ -539,7 +539,6 @@ def run_estimate(
 
     t0 = time.perf_counter()
     files: list[str] = []
-    from .report import write_report
 
     log(f"writing {out}")
     photos = {k: work_inputs.images[k] * np.float32(unit) for k in shots}
@@ -568,12 +567,7 @@ def run_estimate(
         workers = PARALLEL_WRITERS if work * work >= PARALLEL_WRITE_PIXELS else 1
         files += run_jobs(jobs, local, workers, steps)
         stage("outputs", t0)
-        t0 = time.perf_counter()
-        summary["files"] = sorted(files) + ["estimate.json", "report.html"]
-        write_report(tmp, summary)
-        stage("report", t0)
-        summary["total_seconds"] = round(time.perf_counter() - t_start, 3)
-        (tmp / "estimate.json").write_text(json.dumps(summary, indent=1, default=float) + "\n")
+        outputs.write_report_and_summary(tmp, summary, files, t_start, stage)
     return summary
 
 
