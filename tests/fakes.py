@@ -9,7 +9,6 @@ the fast renderer (``flash.exr``, ``noflash.exr``) and returns the folder.
 from __future__ import annotations
 
 import types
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -23,15 +22,7 @@ def fake_inference(grid: int = GRID) -> types.ModuleType:
     """The ``load_model``/``predict`` contract of :mod:`ebr_mitsuba.train.inference`, without a network."""
     from ebr_mitsuba.sgenv import SGEnvironment
     from ebr_mitsuba.svbrdf import SVBRDF
-
-    @dataclass
-    class Prediction:
-        maps: SVBRDF
-        env: SGEnvironment | None
-        env_exemplars: list = field(default_factory=list)
-        flash_only: np.ndarray | None = None
-        selection: dict = field(default_factory=dict)
-        timings: dict = field(default_factory=dict)
+    from ebr_mitsuba.train.inference import Prediction  # the real result type, before any patching
 
     class Bundle:
         resolution = grid

@@ -13,7 +13,6 @@ from __future__ import annotations
 import json
 import sys
 import types
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +24,7 @@ from ebr_mitsuba.geometry import far_shot, near_shot
 from ebr_mitsuba.imageio import write_exr, write_png
 from ebr_mitsuba.sgenv import SGEnvironment
 from ebr_mitsuba.svbrdf import SVBRDF
+from ebr_mitsuba.train.inference import Prediction
 
 GRID = 48
 ENV = SGEnvironment(
@@ -41,14 +41,7 @@ class FakeBundle:
     resolution = GRID
 
 
-@dataclass
-class FakePrediction:
-    maps: SVBRDF
-    env: SGEnvironment | None
-    env_exemplars: list = field(default_factory=list)
-    flash_only: np.ndarray | None = None
-    selection: dict = field(default_factory=dict)
-    timings: dict = field(default_factory=dict)
+FakePrediction = Prediction  # the fake network returns the real result type
 
 
 def _fake_module(calls: list):
