@@ -91,14 +91,14 @@ def test_every_shipped_config_parses(monkeypatch, tmp_path):
 def test_config_errors_name_file_and_key(tmp_path, monkeypatch):
     monkeypatch.delenv("EBR_NOT_SET", raising=False)
     cases = {
-        '[data]\ntrain = "x"\n[train]\nlr = "fast"\n': r"bad\.toml: \[train\]\.lr: expected float",
-        '[data]\ntrain = "x"\n[train]\nbatchsize = 2\n': r"\[train\]\.batchsize: unknown key",
-        'kind = "ebrenv"\n[data]\n': r"\[data\]\.train is required",
-        'kind = "gan"\n[data]\ntrain = "x"\n': r"kind = 'gan'",
+        '[data]\ntrain = "x"\n[train]\nlr = "fast"\n': r"bad\.toml: train\.lr: expected float",
+        '[data]\ntrain = "x"\n[train]\nbatchsize = 2\n': r"train\.batchsize: unknown key",
+        'kind = "ebrenv"\n[data]\n': r"data\.train: is required",
+        'kind = "gan"\n[data]\ntrain = "x"\n': r"kind: got 'gan'",
         '[data]\ntrain = "$EBR_NOT_SET/x"\n': r"\$EBR_NOT_SET is not set",
-        '[data]\ntrain = "x"\n[model]\nwidth = 3\n': r"\[model\]\.width: unknown key",
-        '[data]\ntrain = "x"\n[extract]\niterations = 3\n': r"\[extract\]",
-        '[data]\ntrain = "x"\n[optim]\n': r"'optim' is not a known table",
+        '[data]\ntrain = "x"\n[model]\nwidth = 3\n': r"model\.width: unknown key",
+        '[data]\ntrain = "x"\n[extract]\niterations = 3\n': r"extract\.iterations: unknown key",
+        '[data]\ntrain = "x"\n[optim]\n': r"optim: unknown table",
     }
     for text, pattern in cases.items():
         path = tmp_path / "bad.toml"

@@ -50,22 +50,8 @@ roughness: the selection there is weakly determined (it often falls back to the 
 is which exemplar would help. The coarse grid must be fine enough for the score's narrow peaks
 (a coarse step of 0.2 missed r = 1 and r = 0.15 cases that the 0.15 step finds).
 
-=================  =======================  ===============================================
-``SelectConfig``   default                  meaning
-=================  =======================  ===============================================
-``coarse``         0.05, 0.2, …, 0.95       roughness values tried first (step 0.15)
-                   (step 0.15)
-``fine_step``      0.05                     step of the refinement grid
-``fine_radius``    0.1                      refinement: best coarse r ± k·step, |k·step| ≤
-                                            radius, inside [ROUGHNESS_MIN, 1]
-``anchors``        (0.1, 0.9)               the fixed low and high exemplars (the ends of
-                                            the lighting network's default set)
-``env_mode``       ``quadrature``           fast-renderer environment term of the env
-                                            bases and exemplars (``sg`` or ``quadrature``)
-``env_spp``        256                      quadrature directions per pixel
-``compare_size``   32                       comparison resolution (longer side, pixels)
-``supersample``    2                        basis renders at ``supersample ×`` that
-=================  =======================  ===============================================
+Options: :class:`SelectConfig` (its table, generated from the field metadata, is in its
+docstring and in ``docs/config.md``).
 
 Cost: one diffuse and ≤ 11 specular basis renders at 64² (256 directions each) plus the three
 returned exemplars at the target's size.
@@ -82,55 +68,49 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..colour import LUMINANCE
-from ..errors import ConfigError, InputError
+from ..errors import InputError
 from ..exemplar import EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR
 from ..floors import ROUGHNESS_MIN
 from ..geometry import Shot, near_shot
 from ..sgenv import SGEnvironment
+from ..typedconfig import config, option
 
 MIN_SIZE = 4
-
-
-@dataclass(frozen=True)
+@config
 class SelectConfig:
-    """Knobs of :func:`select_exemplars` (see the module docstring's table)."""
+    """Knobs of :func:`select_exemplars`. :data:`SELECT_PRESETS` names ``default`` (``ebr
+    select-exemplars``) and ``training`` (closed-form SG renders at a 16-pixel comparison: the
+    defaults of a training config's ``[selection]`` table)."""
 
-    coarse: tuple[float, ...] = (0.05, 0.2, 0.35, 0.5, 0.65, 0.8, 0.95)
-    fine_step: float = 0.05
-    fine_radius: float = 0.1
-    anchors: tuple[float, float] = (0.1, 0.9)
-    env_mode: str = "quadrature"
-    env_spp: int = 256
-    compare_size: int = 32
-    supersample: int = 2
-
-    def __post_init__(self):
-        coarse = tuple(float(r) for r in self.coarse)
-        anchors = tuple(float(r) for r in self.anchors)
-        object.__setattr__(self, "coarse", coarse)
-        object.__setattr__(self, "anchors", anchors)
-        if not coarse or not all(0.0 <= r <= 1.0 for r in coarse):
-            raise ConfigError(
-                f"SelectConfig: coarse roughness grid {list(coarse)} must be non-empty and in [0, 1]"
-            )
-        if len(anchors) != 2 or not all(0.0 <= r <= 1.0 for r in anchors) or anchors[0] > anchors[1]:
-            raise ConfigError(
-                f"SelectConfig: anchors {list(anchors)} must be two values low <= high in [0, 1]"
-            )
-        if not (self.fine_step > 0 and self.fine_radius >= 0):
-            raise ConfigError(
-                f"SelectConfig: fine_step must be > 0 and fine_radius >= 0 "
-                f"(got {self.fine_step}, {self.fine_radius})"
-            )
-        if self.env_mode not in ("sg", "quadrature"):
-            raise ConfigError(f"SelectConfig: env_mode {self.env_mode!r}; use 'sg' or 'quadrature'")
-        if int(self.env_spp) < 1:
-            raise ConfigError(f"SelectConfig: env_spp must be >= 1 (got {self.env_spp})")
-        if int(self.compare_size) < MIN_SIZE or int(self.supersample) < 1:
-            raise ConfigError(
-                f"SelectConfig: compare_size must be >= {MIN_SIZE} and supersample >= 1 "
-                f"(got {self.compare_size}, {self.supersample})"
-            )
+    coarse: tuple[float, ...] = option(
+        (0.05, 0.2, 0.35, 0.5, 0.65, 0.8, 0.95),
+        "roughness values tried first (step 0.15)",
+        minimum=0.0,
+        maximum=1.0,
+        nonempty=True,
+    )
+    fine_step: float = option(0.05, "step of the refinement grid", above=0)
+    fine_radius: float = option(
+        0.1, "refinement: best coarse r ± k·step, |k·step| ≤ radius, inside [ROUGHNESS_MIN, 1]", minimum=0
+    )
+    anchors: tuple[float, float] = option(
+        (0.1, 0.9),
+        "the fixed low and high exemplars (the ends of the lighting network's default set)",
+        minimum=0.0,
+        maximum=1.0,
+        ordered=True,
+        metavar="LOW,HIGH",
+    )
+    env_mode: str = option(
+        "quadrature",
+        "fast-renderer environment term of the env bases and exemplars",
+        choices=("sg", "quadrature"),
+        flag="--mode",
+        metavar="MODE",
+    )
+    env_spp: int = option(256, "quadrature directions per pixel", minimum=1, flag="--spp")
+    compare_size: int = option(32, "comparison resolution (longer side, pixels)", minimum=MIN_SIZE)
+    supersample: int = option(2, "basis renders at supersample × that", minimum=1)
 
     def fine_grid(self, best: float) -> tuple[float, ...]:
         """The refinement candidates around ``best`` (``best`` itself excluded), in
@@ -139,6 +119,11 @@ class SelectConfig:
         values = [round(best + i * self.fine_step, 6) for i in range(-k, k + 1) if i != 0]
         return tuple(r for r in values if ROUGHNESS_MIN <= r <= 1.0)
 
+
+SELECT_PRESETS = {
+    "default": SelectConfig(),
+    "training": SelectConfig(env_mode="sg", compare_size=16),
+}
 
 @dataclass(frozen=True)
 class Selection:
@@ -408,6 +393,7 @@ def select_exemplars(
 
 
 __all__ = [
+    "SELECT_PRESETS",
     "Selection",
     "SelectConfig",
     "env_exemplar_images",

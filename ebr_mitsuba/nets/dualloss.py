@@ -28,14 +28,13 @@ Inputs are padded (edge replication) to a multiple of ``2^levels`` and the outpu
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ..errors import ConfigError, InputError
-from ._config import dataclass_from_dict
+from ..errors import InputError
+from ..typedconfig import config, from_dict, option
 from .maps import Maps
 from .transforms import LOG_EPS, NORMAL_Z_MIN, log_input
 
@@ -53,52 +52,27 @@ def basecolor_metallic_to_diffuse_specular(basecolor: torch.Tensor, metallic: to
     return diffuse, specular
 
 
-@dataclass(frozen=True)
+@config
 class DualLossConfig:
-    """Options of :class:`DualLossNet`.
+    """Options of :class:`DualLossNet`."""
 
-    ===================  ================  ====================  ==================================
-    field                type              default               meaning
-    ===================  ================  ====================  ==================================
-    ``num_lights``       int               5                     images per sample (depth L)
-    ``levels``           int               8                     U-Net down-samplings (256² → 1²)
-    ``width_scale``      float             1.0                   multiplies every feature count
-    ``output``           str               ``diffuse_specular``  or ``basecolor_metallic``
-    ``dropout``          float             0.5                   dropout in coarse decoder layers
-    ``dropout_layers``   int               4                     how many coarse decoder layers
-    ``merge_features``   tuple[int, ...]   (16, 32, 32)          3-D conv features
-    ``log_eps``          float             0.01                  ε of ``log(x + ε)`` inputs
-    ===================  ================  ====================  ==================================
-    """
-
-    num_lights: int = 5
-    levels: int = 8
-    width_scale: float = 1.0
-    output: str = "diffuse_specular"
-    dropout: float = 0.5
-    dropout_layers: int = 4
-    merge_features: tuple[int, ...] = (16, 32, 32)
-    log_eps: float = LOG_EPS
-
-    def __post_init__(self):
-        object.__setattr__(self, "merge_features", tuple(self.merge_features))
-        if self.output not in OUTPUT_MODES:
-            raise ConfigError(
-                f"DualLossConfig: unknown output {self.output!r}; use one of {', '.join(OUTPUT_MODES)}"
-            )
-        if self.num_lights < 1 or self.levels < 1 or not self.width_scale > 0:
-            raise ConfigError("DualLossConfig: num_lights and levels must be ≥ 1 and width_scale > 0")
-        if not 0.0 <= self.dropout < 1.0 or self.dropout_layers < 0:
-            raise ConfigError("DualLossConfig: dropout must be in [0, 1) and dropout_layers ≥ 0")
-        if not self.merge_features or any(f < 1 for f in self.merge_features):
-            raise ConfigError("DualLossConfig: merge_features must be a non-empty list of positive ints")
+    num_lights: int = option(5, "images per sample (depth L)", minimum=1)
+    levels: int = option(8, "U-Net down-samplings (256² → 1²)", minimum=1)
+    width_scale: float = option(1.0, "multiplies every feature count", above=0)
+    output: str = option(
+        "diffuse_specular", "diffuse_specular or basecolor_metallic", choices=tuple(OUTPUT_MODES)
+    )
+    dropout: float = option(0.5, "dropout in coarse decoder layers", minimum=0.0, below=1.0)
+    dropout_layers: int = option(4, "how many coarse decoder layers", minimum=0)
+    merge_features: tuple[int, ...] = option((16, 32, 32), "3-D conv features", minimum=1, nonempty=True)
+    log_eps: float = option(LOG_EPS, "ε of log(x + ε) inputs", above=0)
 
     def features(self, base: int) -> int:
         return max(1, round(base * self.width_scale))
 
     @classmethod
-    def from_dict(cls, data: Mapping, where: str = "dual_loss") -> DualLossConfig:
-        return dataclass_from_dict(cls, data, where)
+    def from_dict(cls, data: Mapping, where: str = "dual_loss", *, key: str = "") -> DualLossConfig:
+        return from_dict(cls, data, where, key=key)
 
 
 class DualLossNet(nn.Module):

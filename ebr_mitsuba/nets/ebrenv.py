@@ -40,9 +40,9 @@ import torch
 from torch import nn
 
 from ..errors import ConfigError, InputError
-from ._config import dataclass_from_dict
+from ..typedconfig import check, config, from_dict, option
 from .maps import NUM_MAP_CHANNELS, Maps
-from .nafnet import PAPER_SIZE, NAFNet, NAFNetSize
+from .nafnet import PAPER_SIZE, SIZE_PRESETS, NAFNet, NAFNetSize
 from .transforms import LOG_EPS, log_input, signed_log, soft_clamp_log, unit_interval, unit_normal
 
 CAPTURE_MODES = {"near": 2, "near-far": 4}
@@ -70,42 +70,27 @@ def _check_stack(name: str, x: torch.Tensor, count: int, like: torch.Tensor) -> 
     return x.reshape(b, 3 * count, h, w)
 
 
-@dataclass(frozen=True)
+@config
 class LightingNetConfig:
-    """Options of :class:`LightingNet`.
+    """Options of :class:`LightingNet`."""
 
-    ================  ==========  ==========  ===============================================
-    field             type        default     meaning
-    ================  ==========  ==========  ===============================================
-    ``size``          NAFNetSize  PAPER_SIZE  network size (preset name or table in files)
-    ``capture``       str         ``near``    ``near`` (2 shots) or ``near-far`` (4 shots)
-    ``num_exemplars`` int         4           environment exemplars predicted (N)
-    ``log_eps``       float       0.01        ε of the input transform ``log(x + ε)``
-    ================  ==========  ==========  ===============================================
-    """
-
-    size: NAFNetSize = PAPER_SIZE
-    capture: str = "near"
-    num_exemplars: int = 4
-    log_eps: float = LOG_EPS
-
-    def __post_init__(self):
-        if self.capture not in CAPTURE_MODES:
-            raise ConfigError(
-                f"LightingNetConfig: unknown capture {self.capture!r}; use one of {', '.join(CAPTURE_MODES)}"
-            )
-        if self.num_exemplars < 1:
-            raise ConfigError(f"LightingNetConfig: num_exemplars must be ≥ 1, got {self.num_exemplars}")
-        if not self.log_eps > 0:
-            raise ConfigError(f"LightingNetConfig: log_eps must be > 0, got {self.log_eps}")
+    size: NAFNetSize = option(
+        PAPER_SIZE,
+        "network size (preset name or table in files)",
+        presets=SIZE_PRESETS,
+        preset_kind="network size",
+    )
+    capture: str = option("near", "near (2 shots) or near-far (4 shots)", choices=tuple(CAPTURE_MODES))
+    num_exemplars: int = option(4, "environment exemplars predicted (N)", minimum=1)
+    log_eps: float = option(LOG_EPS, "ε of the input transform log(x + ε)", above=0)
 
     @property
     def num_shots(self) -> int:
         return CAPTURE_MODES[self.capture]
 
     @classmethod
-    def from_dict(cls, data: Mapping, where: str = "lighting") -> LightingNetConfig:
-        return dataclass_from_dict(cls, data, where, nested={"size": NAFNetSize.from_value})
+    def from_dict(cls, data: Mapping, where: str = "lighting", *, key: str = "") -> LightingNetConfig:
+        return from_dict(cls, data, where, key=key)
 
 
 @dataclass
@@ -142,48 +127,34 @@ class LightingNet(nn.Module):
         return LightingOutput(torch.exp(log_ex), torch.exp(log_fo), log_ex, log_fo)
 
 
-@dataclass(frozen=True)
+@config
 class CascadeConfig:
-    """Options of :class:`Cascade`.
+    """Options of :class:`Cascade`."""
 
-    ======================  ==========  ==========  ==========================================
-    field                   type        default     meaning
-    ======================  ==========  ==========  ==========================================
-    ``size``                NAFNetSize  PAPER_SIZE  size of every net of the cascade
-    ``num_env_exemplars``   int         3           selected environment exemplars K (adaptive
-                                                    one + fixed low and high roughness)
-    ``num_point_exemplars`` int         3           selected point-light exemplars M
-    ``num_photos``          int         2           photos P given to the refinement (flash,
-                                                    no-flash)
-    ``use_exemplars``       bool        True        False: ablation "without exemplars"
-    ``use_cascade``         bool        True        False: ablation "without cascade" (one
-                                                    joint net instead of diffuse → specular)
-    ``use_refinement``      bool        True        False: no refinement net
-    ``log_eps``             float       0.01        ε of the log input transforms
-    ======================  ==========  ==========  ==========================================
-    """
-
-    size: NAFNetSize = PAPER_SIZE
-    num_env_exemplars: int = 3
-    num_point_exemplars: int = 3
-    num_photos: int = 2
-    use_exemplars: bool = True
-    use_cascade: bool = True
-    use_refinement: bool = True
-    log_eps: float = LOG_EPS
+    size: NAFNetSize = option(
+        PAPER_SIZE, "size of every net of the cascade", presets=SIZE_PRESETS, preset_kind="network size"
+    )
+    num_env_exemplars: int = option(
+        3, "selected environment exemplars K (adaptive one + fixed low and high roughness)", minimum=0
+    )
+    num_point_exemplars: int = option(3, "selected point-light exemplars M", minimum=0)
+    num_photos: int = option(2, "photos P given to the refinement (flash, no-flash)", minimum=1)
+    use_exemplars: bool = option(True, "false: ablation 'without exemplars'")
+    use_cascade: bool = option(
+        True, "false: ablation 'without cascade' (one joint net instead of diffuse → specular)"
+    )
+    use_refinement: bool = option(True, "false: no refinement net")
+    log_eps: float = option(LOG_EPS, "ε of the log input transforms", above=0)
 
     def __post_init__(self):
+        check(self)
         for name in ("num_env_exemplars", "num_point_exemplars"):
             if getattr(self, name) < (1 if self.use_exemplars else 0):
-                raise ConfigError(f"CascadeConfig: {name} must be ≥ 1 when use_exemplars is true")
-        if self.num_photos < 1:
-            raise ConfigError(f"CascadeConfig: num_photos must be ≥ 1, got {self.num_photos}")
-        if not self.log_eps > 0:
-            raise ConfigError(f"CascadeConfig: log_eps must be > 0, got {self.log_eps}")
+                raise ConfigError(f"CascadeConfig: {name}: must be >= 1 when use_exemplars is true")
 
     @classmethod
-    def from_dict(cls, data: Mapping, where: str = "cascade") -> CascadeConfig:
-        return dataclass_from_dict(cls, data, where, nested={"size": NAFNetSize.from_value})
+    def from_dict(cls, data: Mapping, where: str = "cascade", *, key: str = "") -> CascadeConfig:
+        return from_dict(cls, data, where, key=key)
 
 
 @dataclass

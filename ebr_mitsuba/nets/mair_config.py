@@ -16,146 +16,80 @@ counts per stage and for the ``mean`` fusion too (``docs/mair.md``).
 
 :class:`MAIRConfig` holds the options that are not sizes: the number of SGs per pixel, the fusion
 (``attention`` or the ``mean`` pooling ablation), the SG sharpness range and the input transform.
-Both read TOML tables through :func:`~._config.dataclass_from_dict` (unknown keys rejected; a size
-may be given by preset name).
+Both read TOML tables through :func:`ebr_mitsuba.typedconfig.from_dict` (unknown keys rejected; a
+size may be given by preset name); their option tables are generated from the field metadata.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
 
 from ..errors import ConfigError
-from ._config import dataclass_from_dict
-from .nafnet import NAFNetSize
+from ..typedconfig import check, config, from_dict, nested, option
+from .nafnet import SIZE_PRESETS, NAFNetSize
 from .transforms import LOG_EPS
 
 FUSIONS = ("attention", "mean")
 
 
-def _positive(where: str, **values) -> None:
-    for name, value in values.items():
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ConfigError(f"{where}: {name} must be a positive integer, got {value!r}")
-
-
-@dataclass(frozen=True)
+@config
 class UNetSize:
-    """How big RefineNet's U-Net is.
+    """How big RefineNet's U-Net is."""
 
-    ==========  ===============  ============  =====================================================
-    field       type             default       meaning
-    ==========  ===============  ============  =====================================================
-    ``widths``  tuple[int, ...]  (32, 64, 128) channels per level, fine → coarse (each further level
-                                               halves the resolution; inputs are padded to a multiple
-                                               of ``2**(len(widths) − 1)``)
-    ``depth``   int              2             conv3×3 → GroupNorm → GELU units per level and side
-    ``groups``  int              8             GroupNorm groups (``gcd(groups, channels)`` per layer)
-    ==========  ===============  ============  =====================================================
-    """
-
-    widths: tuple[int, ...] = (32, 64, 128)
-    depth: int = 2
-    groups: int = 8
-
-    def __post_init__(self):
-        object.__setattr__(self, "widths", tuple(self.widths))
-        if not self.widths:
-            raise ConfigError("UNetSize: widths must name at least one level")
-        for w in self.widths:
-            _positive("UNetSize", widths=w)
-        _positive("UNetSize", depth=self.depth, groups=self.groups)
+    widths: tuple[int, ...] = option(
+        (32, 64, 128),
+        "channels per level, fine → coarse (each further level halves the resolution; inputs are "
+        "padded to a multiple of 2**(len(widths) − 1))",
+        minimum=1,
+        nonempty=True,
+    )
+    depth: int = option(2, "conv3×3 → GroupNorm → GELU units per level and side", minimum=1)
+    groups: int = option(8, "GroupNorm groups (gcd(groups, channels) per layer)", minimum=1)
 
     @property
     def levels(self) -> int:
         return len(self.widths)
 
 
-@dataclass(frozen=True)
+_SMALL_NAF = NAFNetSize(width=8, enc_blk_nums=(1, 1, 1), middle_blk_num=1, dec_blk_nums=(1, 1, 1))
+
+
+def _naf(default, meaning):
+    return option(default, meaning, presets=SIZE_PRESETS, preset_kind="network size", shown="(small)")
+
+
+@config
 class MAIRSize:
-    """How big every stage of :class:`~.mair.MAIRModel` is.
+    """How big every stage of :class:`~.mair.MAIRModel` is; the defaults are the ``small`` preset."""
 
-    ==================  ==========  ========  ====================================================
-    field               type        default   meaning
-    ==================  ==========  ========  ====================================================
-    ``encoder_width``   int         8         F_e: channels of the shared per-view encoder of the
-                                              normal and lighting nets (pooled to 2·F_e)
-    ``normal``          NAFNetSize  (small)   normal net backbone
-    ``lighting``        NAFNetSize  (small)   SV-SG lighting net backbone
-    ``spec_hidden``     int         32        SpecNet hidden width
-    ``spec_layers``     int         2         SpecNet hidden layers
-    ``spec_features``   int         16        F_s: SpecNet output features per view and pixel
-    ``mva_dim``         int         32        D: MVANet token width
-    ``mva_heads``       int         4         attention heads (must divide D)
-    ``mva_depth``       int         2         MVANet blocks (attention + MLP, or MLP alone)
-    ``mva_mlp``         int         64        MVANet MLP hidden width
-    ``brdf_features``   int         16        F_b: fused BRDF features handed to RefineNet
-    ``refine``          UNetSize    (small)   RefineNet size
-    ==================  ==========  ========  ====================================================
-
-    The defaults are the ``small`` preset.
-    """
-
-    encoder_width: int = 8
-    normal: NAFNetSize = NAFNetSize(width=8, enc_blk_nums=(1, 1, 1), middle_blk_num=1, dec_blk_nums=(1, 1, 1))
-    lighting: NAFNetSize = NAFNetSize(
-        width=8, enc_blk_nums=(1, 1, 1), middle_blk_num=1, dec_blk_nums=(1, 1, 1)
+    encoder_width: int = option(
+        8,
+        "F_e: channels of the shared per-view encoder of the normal and lighting nets (pooled to 2·F_e)",
+        minimum=1,
     )
-    spec_hidden: int = 32
-    spec_layers: int = 2
-    spec_features: int = 16
-    mva_dim: int = 32
-    mva_heads: int = 4
-    mva_depth: int = 2
-    mva_mlp: int = 64
-    brdf_features: int = 16
-    refine: UNetSize = UNetSize(widths=(16, 32, 64), depth=1, groups=8)
+    normal: NAFNetSize = _naf(_SMALL_NAF, "normal net backbone")
+    lighting: NAFNetSize = _naf(_SMALL_NAF, "SV-SG lighting net backbone")
+    spec_hidden: int = option(32, "SpecNet hidden width", minimum=1)
+    spec_layers: int = option(2, "SpecNet hidden layers", minimum=1)
+    spec_features: int = option(16, "F_s: SpecNet output features per view and pixel", minimum=1)
+    mva_dim: int = option(32, "D: MVANet token width", minimum=1)
+    mva_heads: int = option(4, "attention heads (must divide D)", minimum=1)
+    mva_depth: int = option(2, "MVANet blocks (attention + MLP, or MLP alone)", minimum=1)
+    mva_mlp: int = option(64, "MVANet MLP hidden width", minimum=1)
+    brdf_features: int = option(16, "F_b: fused BRDF features handed to RefineNet", minimum=1)
+    refine: UNetSize = option(
+        UNetSize(widths=(16, 32, 64), depth=1, groups=8), "RefineNet size", shown="(small)"
+    )
 
     def __post_init__(self):
-        _positive(
-            "MAIRSize",
-            encoder_width=self.encoder_width,
-            spec_hidden=self.spec_hidden,
-            spec_layers=self.spec_layers,
-            spec_features=self.spec_features,
-            mva_dim=self.mva_dim,
-            mva_heads=self.mva_heads,
-            mva_depth=self.mva_depth,
-            mva_mlp=self.mva_mlp,
-            brdf_features=self.brdf_features,
-        )
+        check(self)
         if self.mva_dim % self.mva_heads:
             raise ConfigError(f"MAIRSize: mva_heads ({self.mva_heads}) must divide mva_dim ({self.mva_dim})")
-        for name, cls in (("normal", NAFNetSize), ("lighting", NAFNetSize), ("refine", UNetSize)):
-            if not isinstance(getattr(self, name), cls):
-                raise ConfigError(f"MAIRSize: {name} must be a {cls.__name__}, got {getattr(self, name)!r}")
 
     @classmethod
     def from_value(cls, value, where: str = "size") -> MAIRSize:
         """A preset name (``"tiny"``, ``"small"``, ``"paper"``), a table of fields, or a ``MAIRSize``."""
-        if isinstance(value, MAIRSize):
-            return value
-        if isinstance(value, str):
-            if value not in MAIR_SIZE_PRESETS:
-                raise ConfigError(
-                    f"{where}: unknown MAIR size {value!r}; use one of "
-                    f"{', '.join(MAIR_SIZE_PRESETS)} or a table of MAIRSize fields"
-                )
-            return MAIR_SIZE_PRESETS[value]
-        if isinstance(value, Mapping):
-            return dataclass_from_dict(
-                cls,
-                value,
-                where,
-                nested={
-                    "normal": NAFNetSize.from_value,
-                    "lighting": NAFNetSize.from_value,
-                    "refine": lambda v, w: (
-                        v if isinstance(v, UNetSize) else dataclass_from_dict(UNetSize, v, w)
-                    ),
-                },
-            )
-        raise ConfigError(f"{where}: expected a MAIR size preset name or a table, got {value!r}")
+        return nested(cls, value, MAIR_SIZE_PRESETS, where=where, what="MAIR size")
 
 
 _TINY_NAF = NAFNetSize(width=4, enc_blk_nums=(1, 1), middle_blk_num=1, dec_blk_nums=(1, 1))
@@ -192,46 +126,35 @@ MAIR_SIZE_PRESETS = {
 }
 
 
-@dataclass(frozen=True)
+@config
 class MAIRConfig:
-    """Options of :class:`~.mair.MAIRModel`.
+    """Options of :class:`~.mair.MAIRModel`."""
 
-    ===================  ===============  ==========  ============================================
-    field                type             default     meaning
-    ===================  ===============  ==========  ============================================
-    ``size``             MAIRSize         ``small``   stage sizes (preset name or table in files)
-    ``num_sgs``          int              3           S_D: SGs of incident lighting per pixel
-    ``fusion``           str              attention   ``attention`` (MVANet) or ``mean`` (the
-                                                      ablation: per-view MLPs, weighted mean pool)
-    ``sharpness_range``  (float, float)   (1, 2000)   λ_min, λ_max of the per-pixel SGs
-                                                      (log-uniform in between, via a sigmoid)
-    ``log_eps``          float            0.01        ε of the input transform ``log(x + ε)``
-    ===================  ===============  ==========  ============================================
-    """
-
-    size: MAIRSize = MAIR_SIZE_PRESETS["small"]
-    num_sgs: int = 3
-    fusion: str = "attention"
-    sharpness_range: tuple[float, float] = (1.0, 2000.0)
-    log_eps: float = LOG_EPS
+    size: MAIRSize = option(
+        MAIR_SIZE_PRESETS["small"],
+        "stage sizes (preset name or table in files)",
+        presets=MAIR_SIZE_PRESETS,
+        preset_kind="MAIR size",
+    )
+    num_sgs: int = option(3, "S_D: SGs of incident lighting per pixel", minimum=1)
+    fusion: str = option(
+        "attention",
+        "attention (MVANet) or mean (the ablation: per-view MLPs, weighted mean pool)",
+        choices=FUSIONS,
+    )
+    sharpness_range: tuple[float, float] = option(
+        (1.0, 2000.0), "λ_min, λ_max of the per-pixel SGs (log-uniform in between, via a sigmoid)", above=0
+    )
+    log_eps: float = option(LOG_EPS, "ε of the input transform log(x + ε)", above=0)
 
     def __post_init__(self):
-        if isinstance(self.size, (str, Mapping)):
-            object.__setattr__(self, "size", MAIRSize.from_value(self.size, "MAIRConfig.size"))
-        object.__setattr__(self, "sharpness_range", tuple(float(v) for v in self.sharpness_range))
-        _positive("MAIRConfig", num_sgs=self.num_sgs)
-        if self.fusion not in FUSIONS:
-            raise ConfigError(f"MAIRConfig: fusion must be one of {', '.join(FUSIONS)}, got {self.fusion!r}")
+        check(self)
         lo_hi = self.sharpness_range
-        if len(lo_hi) != 2 or not 0 < lo_hi[0] < lo_hi[1]:
+        if not lo_hi[0] < lo_hi[1]:
             raise ConfigError(
                 f"MAIRConfig: sharpness_range must be (λ_min, λ_max) with 0 < λ_min < λ_max, got {lo_hi}"
             )
-        if not self.log_eps > 0:
-            raise ConfigError(f"MAIRConfig: log_eps must be > 0, got {self.log_eps}")
-        if not isinstance(self.size, MAIRSize):
-            raise ConfigError(f"MAIRConfig: size must be a MAIRSize or a preset name, got {self.size!r}")
 
     @classmethod
-    def from_dict(cls, data: Mapping, where: str = "model") -> MAIRConfig:
-        return dataclass_from_dict(cls, data, where, nested={"size": MAIRSize.from_value})
+    def from_dict(cls, data: Mapping, where: str = "model", *, key: str = "") -> MAIRConfig:
+        return from_dict(cls, data, where, key=key)

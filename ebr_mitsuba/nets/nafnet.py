@@ -35,54 +35,36 @@ preset            width  enc_blk_nums    middle  dec_blk_nums    parameters*
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from dataclasses import dataclass
-
 import torch
 import torch.nn.functional as F
 from torch import nn
 
 from ..errors import ConfigError, InputError
-from ._config import dataclass_from_dict
+from ..typedconfig import check, config, nested, option
 
 
-@dataclass(frozen=True)
+@config
 class NAFNetSize:
-    """How big a :class:`NAFNet` is.
+    """How big a :class:`NAFNet` is (:data:`SIZE_PRESETS` names ``paper`` and ``small``)."""
 
-    ================  ===============  =========  ==========================================
-    field             type             default    meaning
-    ================  ===============  =========  ==========================================
-    ``width``         int              36         channels at full resolution
-    ``enc_blk_nums``  tuple[int, ...]  (2,2,4,8)  NAF blocks per encoder level (one level per
-                                                  entry; each level halves the resolution)
-    ``middle_blk_num``int              12         NAF blocks at the coarsest resolution
-    ``dec_blk_nums``  tuple[int, ...]  (2,2,2,2)  NAF blocks per decoder level (coarse → fine)
-    ================  ===============  =========  ==========================================
-    """
-
-    width: int = 36
-    enc_blk_nums: tuple[int, ...] = (2, 2, 4, 8)
-    middle_blk_num: int = 12
-    dec_blk_nums: tuple[int, ...] = (2, 2, 2, 2)
+    width: int = option(36, "channels at full resolution", minimum=1)
+    enc_blk_nums: tuple[int, ...] = option(
+        (2, 2, 4, 8),
+        "NAF blocks per encoder level (one level per entry; each level halves the resolution)",
+        minimum=0,
+    )
+    middle_blk_num: int = option(12, "NAF blocks at the coarsest resolution", minimum=0)
+    dec_blk_nums: tuple[int, ...] = option(
+        (2, 2, 2, 2), "NAF blocks per decoder level (coarse → fine)", minimum=0
+    )
 
     def __post_init__(self):
-        object.__setattr__(self, "enc_blk_nums", tuple(self.enc_blk_nums))
-        object.__setattr__(self, "dec_blk_nums", tuple(self.dec_blk_nums))
-        if not isinstance(self.width, int) or self.width < 1:
-            raise ConfigError(f"NAFNetSize: width must be a positive integer, got {self.width!r}")
+        check(self)
         if len(self.enc_blk_nums) != len(self.dec_blk_nums):
             raise ConfigError(
                 f"NAFNetSize: enc_blk_nums {self.enc_blk_nums} and dec_blk_nums "
                 f"{self.dec_blk_nums} must have the same length (one entry per level)"
             )
-        for name, counts in (
-            ("enc_blk_nums", self.enc_blk_nums),
-            ("dec_blk_nums", self.dec_blk_nums),
-            ("middle_blk_num", (self.middle_blk_num,)),
-        ):
-            if any((not isinstance(n, int)) or n < 0 for n in counts):
-                raise ConfigError(f"NAFNetSize: {name} must be non-negative integers, got {counts}")
 
     @property
     def levels(self) -> int:
@@ -92,18 +74,7 @@ class NAFNetSize:
     @classmethod
     def from_value(cls, value, where: str = "size") -> NAFNetSize:
         """A preset name (``"paper"``, ``"small"``), a table of fields, or a ``NAFNetSize``."""
-        if isinstance(value, NAFNetSize):
-            return value
-        if isinstance(value, str):
-            if value not in SIZE_PRESETS:
-                raise ConfigError(
-                    f"{where}: unknown network size {value!r}; use one of "
-                    f"{', '.join(SIZE_PRESETS)} or a table of NAFNetSize fields"
-                )
-            return SIZE_PRESETS[value]
-        if isinstance(value, Mapping):
-            return dataclass_from_dict(cls, value, where)
-        raise ConfigError(f"{where}: expected a size preset name or a table, got {value!r}")
+        return nested(cls, value, SIZE_PRESETS, where=where, what="network size")
 
 
 PAPER_SIZE = NAFNetSize(width=36, enc_blk_nums=(2, 2, 4, 8), middle_blk_num=12, dec_blk_nums=(2, 2, 2, 2))

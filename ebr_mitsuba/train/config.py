@@ -1,7 +1,8 @@
 """Training configuration: typed TOML tables, every default in this one file, unknown keys rejected.
 
 Precedence: the defaults below < the config file < the command line (``ebr train --out``).
-Errors name the file and the key (``train_small.toml: [train].lr: expected float, got 'fast'``).
+Errors name the file and the key (``train_small.toml: train.lr: expected float (a number), got 'fast'``),
+in the one format of :mod:`ebr_mitsuba.typedconfig`.
 
 A config has a top-level ``kind`` and five tables::
 
@@ -13,15 +14,9 @@ A config has a top-level ``kind`` and five tables::
     [stages]                        # ebrenv: steps per phase (StageSteps)
     [loss]                          # LossConfig
 
-**[data]**
+**[data]** (:class:`DataConfig`)
 
-=================  ======  =========  ========================================================
-key                type    default    meaning
-=================  ======  =========  ========================================================
-``train``          str     required   data set directory (``ebr generate``); ``$VAR`` and ``~``
-                                      expanded, relative paths from the config file's directory
-``max_samples``    int     0          use the first N samples only (0: all)
-=================  ======  =========  ========================================================
+.. options:: DataConfig
 
 **[model]** (ebrenv) — ``size`` (NAFNet preset ``"paper"``/``"small"`` or a table, every net),
 ``capture`` (``near``), ``use_exemplars``, ``use_cascade``, ``use_refinement`` (the §5.3.2
@@ -29,68 +24,33 @@ ablations), ``log_eps``. The number of lighting-net exemplars and their roughnes
 from the data set (``[exemplars].env_roughness``). (dualloss) — the fields of
 :class:`ebr_mitsuba.nets.DualLossConfig`.
 
-**[train]**
+**[train]** (:class:`TrainOptions`)
 
-=====================  ======  ========  ===================================================
-key                    type    default   meaning
-=====================  ======  ========  ===================================================
-``seed``               int     0         seeds torch, the sample order and the loss sampling
-``steps``              int     1000      dualloss: training steps (ebrenv: see [stages])
-``batch_size``         int     8         samples per step (per process under DDP)
-``lr``                 float   1e-3      initial learning rate of every phase (Adam)
-``lr_final``           float   1e-5      learning rate at the end of a phase (cosine decay)
-``weight_decay``       float   0.0       Adam weight decay
-``device``             str     ``auto``  ``auto`` (CUDA when present), ``cpu``, ``cuda``
-``threads``            int     0         torch CPU threads (0: torch's default)
-``log_every``          int     10        steps between loss read-backs (CSV row, bar update)
-``checkpoint_every``   int     200       steps between checkpoints (and at each phase end)
-``init``               str     ``""``    checkpoint whose matching weights start the run
-=====================  ======  ========  ===================================================
+.. options:: TrainOptions
 
-**[stages]** (ebrenv; steps per phase, run in this order; 0 skips a phase)
+**[stages]** (ebrenv, :class:`StageSteps`; steps per phase, run in this order; 0 skips a phase)
 
-==============  ======  =======  ============================================================
-key             type    default  phase
-==============  ======  =======  ============================================================
-``lighting``    int     1000     stage 1: lighting net (shots → exemplars, flash-only)
-``diffuse``     int     1000     stage 1: diffuse net (or the joint net without cascade), GT env
-``specular``    int     1000     stage 1: specular net, diffuse net frozen, GT env
-``refinement``  int     1000     stage 1: refinement net, first stage frozen, GT env residuals
-``finetune``    int     500      stage 2: whole cascade on the extracted SGs (cached on disk)
-``finetune_lr`` float   1e-4     initial learning rate of stage 2
-``finetune_samples`` int 200     samples whose extracted SGs stage 2 caches and trains on
-==============  ======  =======  ============================================================
+.. options:: StageSteps
 
 **[selection]** — :class:`ebr_mitsuba.extract.select.SelectConfig` fields for the exemplar
-selection of training and inference; defaults :data:`SELECTION_DEFAULTS` (closed-form SG
-renders at a 16-pixel comparison: about 0.4 s per sample at 64², against 1.3 s for the
-selection's own defaults). **[extract]** — :class:`ebr_mitsuba.extract.ExtractConfig` fields of
-the SG extraction in stage 2 and at inference; defaults :data:`EXTRACT_DEFAULTS`.
+selection of training and inference over the named preset ``SELECT_PRESETS["training"]``
+(closed-form SG renders at a 16-pixel comparison: about 0.4 s per sample at 64², against 1.3 s
+for the selection's own defaults). **[extract]** — :class:`ebr_mitsuba.extract.ExtractConfig`
+fields of the SG extraction in stage 2 and at inference over ``EXTRACT_PRESETS["training"]``.
+Their tables with these defaults are in ``docs/config.md``.
 
 [stages], [selection] and [extract] apply to ``kind = "ebrenv"`` alone: a dualloss config that
 sets one is refused, and :meth:`TrainConfig.to_dict` (the config a checkpoint carries) leaves
 them out for a dualloss config.
 
-**[loss]**
+**[loss]** (:class:`LossConfig`)
 
-=====================  ======  =======  ===========================================================
-key                    type    default  meaning
-=====================  ======  =======  ===========================================================
-``normal``             float   1.0      weight of the normal map's L1
-``diffuse``            float   1.0      weight of the diffuse map's L1
-``specular``           float   1.0      weight of the specular map's L1
-``roughness``          float   1.0      weight of the roughness map's L1
-``render``             float   0.0      ebrenv: weight of the rendering loss in refinement and
-                                        stage 2; dualloss: weight of the rendering loss (1.0 there)
-``render_pairs``       int     10       view/light pairs per step of the rendering loss
-``render_highlights``  int     5        of which forced highlights
-=====================  ======  =======  ===========================================================
+.. options:: LossConfig
 """
 
 from __future__ import annotations
 
 import dataclasses
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -98,55 +58,87 @@ from typing import Any
 import tomllib
 
 from ..errors import ConfigError
+from ..typedconfig import Meta, check, config, convert, document, expand_path, from_dict, option, unknown_keys
 
 KINDS = ("ebrenv", "dualloss")
 PHASES = ("lighting", "diffuse", "specular", "refinement", "finetune")
 
 
-@dataclass(frozen=True)
+@config
 class DataConfig:
-    train: str = ""
-    max_samples: int = 0
+    """The ``[data]`` table."""
+
+    train: str = option(
+        "",
+        "data set directory (ebr generate); $VAR and ~ expanded, relative paths from the config "
+        "file's directory",
+        required=True,
+        shown="required",
+    )
+    max_samples: int = option(0, "use the first N samples only (0: all)", minimum=0)
 
 
-@dataclass(frozen=True)
+@config
 class TrainOptions:
-    seed: int = 0
-    steps: int = 1000
-    batch_size: int = 8
-    lr: float = 1e-3
-    lr_final: float = 1e-5
-    weight_decay: float = 0.0
-    device: str = "auto"
-    threads: int = 0
-    log_every: int = 10
-    checkpoint_every: int = 200
-    init: str = ""
+    """The ``[train]`` table."""
+
+    seed: int = option(0, "seeds torch, the sample order and the loss sampling")
+    steps: int = option(1000, "dualloss: training steps (ebrenv: see [stages])", minimum=0)
+    batch_size: int = option(8, "samples per step (per process under DDP)", minimum=1)
+    lr: float = option(1e-3, "initial learning rate of every phase (Adam)", above=0)
+    lr_final: float = option(1e-5, "learning rate at the end of a phase (cosine decay); at most lr", above=0)
+    weight_decay: float = option(0.0, "Adam weight decay")
+    device: str = option("auto", "auto (CUDA when present), cpu, cuda", choices=("auto", "cpu", "cuda"))
+    threads: int = option(0, "torch CPU threads (0: torch's default)")
+    log_every: int = option(10, "steps between loss read-backs (CSV row, bar update)", minimum=1)
+    checkpoint_every: int = option(200, "steps between checkpoints (and at each phase end)", minimum=1)
+    init: str = option("", "checkpoint whose matching weights start the run")
+
+    def __post_init__(self):
+        check(self)
+        if self.lr_final > self.lr:
+            raise ConfigError(f"TrainOptions: lr_final: must be <= lr ({self.lr:g}), got {self.lr_final:g}")
 
 
-@dataclass(frozen=True)
+@config
 class StageSteps:
-    lighting: int = 1000
-    diffuse: int = 1000
-    specular: int = 1000
-    refinement: int = 1000
-    finetune: int = 500
-    finetune_lr: float = 1e-4
-    finetune_samples: int = 200
+    """The ``[stages]`` table (kind = "ebrenv")."""
+
+    lighting: int = option(1000, "stage 1: lighting net (shots → exemplars, flash-only)", minimum=0)
+    diffuse: int = option(1000, "stage 1: diffuse net (or the joint net without cascade), GT env", minimum=0)
+    specular: int = option(1000, "stage 1: specular net, diffuse net frozen, GT env", minimum=0)
+    refinement: int = option(1000, "stage 1: refinement net, first stage frozen, GT env residuals", minimum=0)
+    finetune: int = option(500, "stage 2: whole cascade on the extracted SGs (cached on disk)", minimum=0)
+    finetune_lr: float = option(1e-4, "initial learning rate of stage 2", above=0)
+    finetune_samples: int = option(200, "samples whose extracted SGs stage 2 caches and trains on", minimum=0)
 
     def steps(self, phase: str) -> int:
         return int(getattr(self, phase))
 
 
-@dataclass(frozen=True)
+@config
 class LossConfig:
-    normal: float = 1.0
-    diffuse: float = 1.0
-    specular: float = 1.0
-    roughness: float = 1.0
-    render: float = 0.0
-    render_pairs: int = 10
-    render_highlights: int = 5
+    """The ``[loss]`` table."""
+
+    normal: float = option(1.0, "weight of the normal map's L1")
+    diffuse: float = option(1.0, "weight of the diffuse map's L1")
+    specular: float = option(1.0, "weight of the specular map's L1")
+    roughness: float = option(1.0, "weight of the roughness map's L1")
+    render: float = option(
+        0.0,
+        "ebrenv: weight of the rendering loss in refinement and stage 2; dualloss: weight of the "
+        "rendering loss (1.0 there)",
+    )
+    render_pairs: int = option(10, "view/light pairs per step of the rendering loss", minimum=1)
+    render_highlights: int = option(5, "of which forced highlights (at most render_pairs)", minimum=0)
+
+    def __post_init__(self):
+        check(self)
+        if self.render_highlights > self.render_pairs:
+            raise ConfigError(
+                f"LossConfig: render_highlights: must be <= render_pairs ({self.render_pairs}), "
+                f"got {self.render_highlights}"
+            )
 
 
 @dataclass(frozen=True)
@@ -185,20 +177,20 @@ class TrainConfig:
         return out
 
     def select_config(self):
-        from ..extract.select import SelectConfig
-        from ..nets._config import dataclass_from_dict
+        """The exemplar selection: ``[selection]`` over ``SELECT_PRESETS["training"]``."""
+        from ..exemplar.select import SELECT_PRESETS, SelectConfig
 
-        return dataclass_from_dict(
-            SelectConfig, {**SELECTION_DEFAULTS, **self.selection}, f"{self.source}: [selection]"
+        return from_dict(
+            SelectConfig, self.selection, self.source, key="selection", base=SELECT_PRESETS[SELECT_PRESET]
         )
 
     def extract_config(self):
-        from ..extract import ExtractConfig
+        """The SG extraction: ``[extract]`` over ``EXTRACT_PRESETS["training"]``."""
+        from ..extract.config import EXTRACT_PRESETS, ExtractConfig
 
-        try:
-            return ExtractConfig.from_dict({**EXTRACT_DEFAULTS, **self.extract})
-        except ConfigError as exc:
-            raise ConfigError(f"{self.source}: [extract]: {exc}") from None
+        return from_dict(
+            ExtractConfig, self.extract, self.source, key="extract", base=EXTRACT_PRESETS[EXTRACT_PRESET]
+        )
 
     def lighting_config(self, num_exemplars: int):
         from ..nets import LightingNetConfig
@@ -206,7 +198,7 @@ class TrainConfig:
         m = self.model
         table = {k: m[k] for k in ("size", "capture", "log_eps") if k in m}
         return LightingNetConfig.from_dict(
-            {**table, "num_exemplars": num_exemplars}, f"{self.source}: [model]"
+            {**table, "num_exemplars": num_exemplars}, self.source, key="model"
         )
 
     def cascade_config(self):
@@ -217,16 +209,16 @@ class TrainConfig:
             k: m[k] for k in ("size", "use_exemplars", "use_cascade", "use_refinement", "log_eps") if k in m
         }
         photos = 4 if m.get("capture", "near") == "near-far" else 2
-        return CascadeConfig.from_dict({**table, "num_photos": photos}, f"{self.source}: [model]")
+        return CascadeConfig.from_dict({**table, "num_photos": photos}, self.source, key="model")
 
     def dualloss_config(self):
         from ..nets import DualLossConfig
 
-        return DualLossConfig.from_dict(self.model, f"{self.source}: [model]")
+        return DualLossConfig.from_dict(self.model, self.source, key="model")
 
 
-SELECTION_DEFAULTS = {"env_mode": "sg", "compare_size": 16}
-EXTRACT_DEFAULTS = {"iters": 100, "max_lobes": 16}
+SELECT_PRESET = "training"  # the SELECT_PRESETS entry [selection] overrides
+EXTRACT_PRESET = "training"  # the EXTRACT_PRESETS entry [extract] overrides
 EBRENV_TABLES = ("stages", "selection", "extract")  # tables that apply to kind = "ebrenv" alone
 EBRENV_MODEL_KEYS = ("size", "capture", "use_exemplars", "use_cascade", "use_refinement", "log_eps")
 
@@ -241,77 +233,26 @@ def _plain(value):
     return value
 
 
-def _table(cls, data, where: str):
-    if data is None:
-        return cls()
-    if not isinstance(data, dict):
-        raise ConfigError(f"{where}: expected a table, got {type(data).__name__}")
-    hints = {f.name: f.type for f in dataclasses.fields(cls)}
-    unknown = sorted(set(data) - set(hints))
-    if unknown:
-        raise ConfigError(f"{where}.{unknown[0]}: unknown key; allowed: {', '.join(sorted(hints))}")
-    defaults = cls()
-    out = {}
-    for key, value in data.items():
-        expected = type(getattr(defaults, key))
-        ok = (
-            (isinstance(value, expected) and not isinstance(value, bool))
-            if expected is not bool
-            else isinstance(value, bool)
-        )
-        if expected is float and isinstance(value, int) and not isinstance(value, bool):
-            value, ok = float(value), True
-        if not ok:
-            raise ConfigError(f"{where}.{key}: expected {expected.__name__}, got {value!r}")
-        out[key] = value
-    return cls(**out)
+def _expand(text: str, source: str, key: str, base: Path) -> str:
+    return str(expand_path(text, base, where=source, key=key))
 
 
-def _expand(text: str, where: str, base: Path) -> str:
-    def var(name):
-        if name not in os.environ:
-            raise ConfigError(f"{where}: ${name} is not set; export it or write the path out")
-        return os.environ[name]
-
-    import re
-
-    text = re.sub(r"\$\{(\w+)\}|\$(\w+)", lambda m: var(m.group(1) or m.group(2)), text)
-    path = Path(text).expanduser()
-    return str(path if path.is_absolute() else (base / path))
+TABLES = {"data": DataConfig, "train": TrainOptions, "stages": StageSteps, "loss": LossConfig}
 
 
 def parse_config(doc: dict[str, Any], source: str = "<memory>", base_dir: str | Path = ".") -> TrainConfig:
     """Validate a parsed TOML document (see the module docstring); ``source`` names it in errors."""
-    allowed = {"kind", "data", "model", "train", "stages", "loss", "selection", "extract"}
-    unknown = sorted(set(doc) - allowed)
-    if unknown:
-        raise ConfigError(
-            f"{source}: '{unknown[0]}' is not a known table or key; use {', '.join(sorted(allowed))}"
-        )
-    kind = doc.get("kind", "ebrenv")
-    if kind not in KINDS:
-        raise ConfigError(f"{source}: kind = {kind!r}; use one of {', '.join(KINDS)}")
-    data = _table(DataConfig, doc.get("data"), f"{source}: [data]")
+    allowed = ("kind", "data", "model", "train", "stages", "loss", "selection", "extract")
+    unknown_keys(doc, allowed, where=source, noun="table or key")
+    kind = convert(doc.get("kind", "ebrenv"), str, Meta("", choices=KINDS), where=source, key="kind")
+    tables = {name: from_dict(cls, doc.get(name) or {}, source, key=name) for name, cls in TABLES.items()}
+    data, train = tables["data"], tables["train"]
     if not data.train:
-        raise ConfigError(f"{source}: [data].train is required (a data set directory from 'ebr generate')")
-    data = dataclasses.replace(data, train=_expand(data.train, f"{source}: [data].train", Path(base_dir)))
-    if data.max_samples < 0:
-        raise ConfigError(f"{source}: [data].max_samples must be >= 0")
-    train = _table(TrainOptions, doc.get("train"), f"{source}: [train]")
+        raise ConfigError(f"{source}: data.train: is required (a data set directory from 'ebr generate')")
+    base = Path(base_dir)
+    data = dataclasses.replace(data, train=_expand(data.train, source, "data.train", base))
     if train.init:
-        train = dataclasses.replace(
-            train, init=_expand(train.init, f"{source}: [train].init", Path(base_dir))
-        )
-    for key in ("batch_size", "log_every", "checkpoint_every"):
-        if getattr(train, key) < 1:
-            raise ConfigError(f"{source}: [train].{key} must be >= 1")
-    if not (train.lr > 0 and 0 < train.lr_final <= train.lr):
-        raise ConfigError(f"{source}: [train] needs lr > 0 and 0 < lr_final <= lr")
-    if train.device not in ("auto", "cpu", "cuda"):
-        raise ConfigError(f"{source}: [train].device = {train.device!r}; use auto, cpu or cuda")
-    stages = _table(StageSteps, doc.get("stages"), f"{source}: [stages]")
-    if any(stages.steps(p) < 0 for p in PHASES) or stages.finetune_samples < 0 or not stages.finetune_lr > 0:
-        raise ConfigError(f"{source}: [stages] step and sample counts must be >= 0 and finetune_lr > 0")
+        train = dataclasses.replace(train, init=_expand(train.init, source, "train.init", base))
     if kind == "dualloss" and doc.get("stages") is not None:
         raise ConfigError(f"{source}: [stages] is for kind = 'ebrenv'; a dualloss config sets [train].steps")
     for name in ("selection", "extract"):
@@ -320,32 +261,19 @@ def parse_config(doc: dict[str, Any], source: str = "<memory>", base_dir: str | 
                 f"{source}: [{name}] is for kind = 'ebrenv' (exemplars and SG lighting); remove it "
                 f"from this dualloss config"
             )
-    if train.steps < 0:
-        raise ConfigError(f"{source}: [train].steps must be >= 0")
-    loss = _table(LossConfig, doc.get("loss"), f"{source}: [loss]")
-    if not 0 <= loss.render_highlights <= loss.render_pairs or loss.render_pairs < 1:
-        raise ConfigError(
-            f"{source}: [loss] needs 1 <= render_pairs and 0 <= render_highlights <= render_pairs"
-        )
-    model = doc.get("model") or {}
-    if not isinstance(model, dict):
-        raise ConfigError(f"{source}: [model] must be a table")
-    tables = {}
-    for name in ("selection", "extract"):
+    raw = {}
+    for name in ("model", "selection", "extract"):
         table = doc.get(name) or {}
         if not isinstance(table, dict):
-            raise ConfigError(f"{source}: [{name}] must be a table")
-        tables[name] = dict(table)
+            raise ConfigError(f"{source}: {name}: expected a table, got {table!r}")
+        raw[name] = dict(table)
+    model = raw["model"]
     config = TrainConfig(
-        kind, data, dict(model), train, stages, loss, tables["selection"], tables["extract"], source
+        kind, data, model, train, tables["stages"], tables["loss"], raw["selection"], raw["extract"], source
     )
     # Build the network configs once so that bad model keys fail here, before any work.
     if kind == "ebrenv":
-        unknown = sorted(set(model) - set(EBRENV_MODEL_KEYS))
-        if unknown:
-            raise ConfigError(
-                f"{source}: [model].{unknown[0]}: unknown key; allowed: {', '.join(EBRENV_MODEL_KEYS)}"
-            )
+        unknown_keys(model, EBRENV_MODEL_KEYS, where=source, key="model")
         config.lighting_config(4)
         config.cascade_config()
         config.select_config()
@@ -375,9 +303,9 @@ def config_from_dict(data: dict) -> TrainConfig:
 __all__ = [
     "DataConfig",
     "EBRENV_TABLES",
-    "EXTRACT_DEFAULTS",
+    "EXTRACT_PRESET",
     "KINDS",
-    "SELECTION_DEFAULTS",
+    "SELECT_PRESET",
     "LossConfig",
     "PHASES",
     "StageSteps",
@@ -387,3 +315,7 @@ __all__ = [
     "load_config",
     "parse_config",
 ]
+
+__doc__ = document(
+    __doc__, DataConfig=DataConfig, TrainOptions=TrainOptions, StageSteps=StageSteps, LossConfig=LossConfig
+)
