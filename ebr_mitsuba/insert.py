@@ -60,6 +60,7 @@ from .geometry import Shot
 from .metrics import rel_rmse, rmse
 from .sgenv import SGEnvironment
 from .svbrdf import SVBRDF
+from .typedconfig import check, config, option
 
 #: Built-in objects; anything else must be a mesh file with one of :data:`MESH_SUFFIXES`.
 OBJECTS = ("sphere", "cube", "none")
@@ -119,30 +120,63 @@ GAP = 4  # white pixels between the panels
 # -- configuration ----------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
+@config(error=InputError, cli=True)
 class InsertConfig:
-    """What to insert and how to render it (defaults in :mod:`ebr_mitsuba.insert`'s constants).
+    """What to insert and how to render it (the options of ``ebr insert``; a bad value is an
+    :class:`~ebr_mitsuba.errors.InputError` naming the flag)."""
 
-    ``res`` None renders at the resolution of the estimate's maps (at most
-    :data:`DEFAULT_MAX_RES`); ``truth_seed`` None uses
-    ``seed`` for the truth render too."""
-
-    object: str = DEFAULT_OBJECT
-    material: str = DEFAULT_MATERIAL
-    spp: int = DEFAULT_SPP
-    res: int | None = None
-    scale: float = DEFAULT_SCALE
-    position: tuple[float, float] = DEFAULT_POSITION
-    elevation: float = DEFAULT_ELEVATION
-    seed: int = DEFAULT_SEED
-    truth_seed: int | None = None
-    mesh_up: str = DEFAULT_MESH_UP
+    object: str = option(
+        DEFAULT_OBJECT, "sphere, cube, none or a .obj/.ply file", flag="--object", metavar="O"
+    )
+    material: str = option(DEFAULT_MATERIAL, "object material", choices=tuple(MATERIALS), metavar="M")
+    spp: int = option(DEFAULT_SPP, "samples per pixel of each render", minimum=1, maximum=MAX_SPP)
+    res: int | None = option(
+        None,
+        "image size, square",
+        minimum=MIN_RES,
+        maximum=MAX_RES,
+        shown=f"the maps' resolution, at most {DEFAULT_MAX_RES}",
+    )
+    scale: float = option(
+        DEFAULT_SCALE,
+        "the object's width as a fraction of the sample's width",
+        above=0,
+        maximum=1,
+        flag="--object-scale",
+        metavar="F",
+        shown="1/3",
+    )
+    position: tuple[float, float] = option(
+        DEFAULT_POSITION,
+        "the object's centre on the sample",
+        minimum=-1,
+        maximum=1,
+        metavar="X,Y",
+        shown="0,0",
+    )
+    elevation: float = option(
+        DEFAULT_ELEVATION,
+        "camera elevation in degrees (90: the estimate's camera, straight above)",
+        minimum=MIN_ELEVATION,
+        maximum=90,
+        metavar="DEG",
+        fix="90 is the estimate's camera, straight above",
+    )
+    seed: int = option(DEFAULT_SEED, "sampler seed", minimum=0, below=2**32, metavar="S")
+    truth_seed: int | None = option(
+        None,
+        "sampler seed of the truth render (correlated noise, which mostly cancels in the RMSE)",
+        minimum=0,
+        below=2**32,
+        metavar="S",
+        shown="--seed",
+    )
+    mesh_up: str = option(
+        DEFAULT_MESH_UP, "the mesh file's up axis, y (Wavefront's usual) or z", choices=MESH_UP, metavar="A"
+    )
 
     def __post_init__(self):
-        if self.material not in MATERIALS:
-            raise InputError(
-                f"--material {self.material!r}: unknown material; use one of {', '.join(MATERIALS)}"
-            )
+        check(self)
         if self.object not in OBJECTS:
             path = Path(self.object)
             if path.suffix.lower() not in MESH_SUFFIXES:
@@ -153,30 +187,6 @@ class InsertConfig:
                 )
             if not path.is_file():
                 raise InputError(f"{path}: no such mesh file; give an existing .obj (or .ply) file")
-        if self.mesh_up not in MESH_UP:
-            raise InputError(f"--mesh-up {self.mesh_up!r}: use y (Wavefront's usual up axis) or z")
-        if not (isinstance(self.spp, int) and 1 <= self.spp <= MAX_SPP):
-            raise InputError(f"--spp {self.spp}: give an integer in [1, {MAX_SPP}]")
-        if self.res is not None and not (isinstance(self.res, int) and MIN_RES <= self.res <= MAX_RES):
-            raise InputError(f"--res {self.res}: give an integer in [{MIN_RES}, {MAX_RES}]")
-        if not (math.isfinite(self.scale) and 0 < self.scale <= 1):
-            raise InputError(
-                f"--object-scale {self.scale}: give the object's width as a fraction of "
-                f"the sample's width, in (0, 1]"
-            )
-        x, y = self.position
-        if not (math.isfinite(x) and math.isfinite(y) and abs(x) <= 1 and abs(y) <= 1):
-            raise InputError(
-                f"--position {x},{y}: the object's centre must lie on the sample, x and y in [-1, 1]"
-            )
-        if not (math.isfinite(self.elevation) and MIN_ELEVATION <= self.elevation <= 90):
-            raise InputError(
-                f"--elevation {self.elevation}: give degrees in [{MIN_ELEVATION:g}, 90] "
-                f"(90: the estimate's camera, straight above)"
-            )
-        for name, seed in (("--seed", self.seed), ("--truth-seed", self.truth_seed)):
-            if seed is not None and not (isinstance(seed, int) and 0 <= seed < 2**32):
-                raise InputError(f"{name} {seed}: give an integer in [0, 2^32)")
 
     @property
     def width(self) -> float:
@@ -197,6 +207,21 @@ class InsertConfig:
             "truth_seed": self.seed if self.truth_seed is None else self.truth_seed,
             **({"mesh_up": self.mesh_up} if self.object not in OBJECTS else {}),
         }
+
+
+#: The fields ``ebr insert`` sets from its flags (:func:`ebr_mitsuba.typedconfig.add_flags`).
+INSERT_FLAGS = (
+    "object",
+    "material",
+    "spp",
+    "res",
+    "scale",
+    "position",
+    "elevation",
+    "seed",
+    "truth_seed",
+    "mesh_up",
+)
 
 
 # -- the scene's inputs: maps, lighting, camera -------------------------------------------------------

@@ -198,23 +198,28 @@ def _fail(error, where: str, key: str, problem: str) -> Exception:
     return error(f"{head}{key}: {problem}" if key else f"{head}{problem}")
 
 
+def _num(x) -> str:
+    x = float(x)
+    return str(int(x)) if x.is_integer() and abs(x) < 1e16 else f"{x:g}"
+
+
 def _range_text(m: Meta) -> str:
     lo = (
-        (f"[{m.minimum:g}" if m.minimum is not None else f"({m.above:g}")
-        if (m.minimum is not None or m.above is not None)
-        else None
+        f"[{_num(m.minimum)}"
+        if m.minimum is not None
+        else (f"({_num(m.above)}" if m.above is not None else "")
     )
     hi = (
-        (f"{m.maximum:g}]" if m.maximum is not None else f"{m.below:g})")
-        if (m.maximum is not None or m.below is not None)
-        else None
+        f"{_num(m.maximum)}]"
+        if m.maximum is not None
+        else (f"{_num(m.below)})" if m.below is not None else "")
     )
     if lo and hi:
         return f"in {lo}, {hi}"
     if lo:
-        return f">= {m.minimum:g}" if m.minimum is not None else f"> {m.above:g}"
+        return f">= {_num(m.minimum)}" if m.minimum is not None else f"> {_num(m.above)}"
     if hi:
-        return f"<= {m.maximum:g}" if m.maximum is not None else f"< {m.below:g}"
+        return f"<= {_num(m.maximum)}" if m.maximum is not None else f"< {_num(m.below)}"
     return ""
 
 
@@ -268,7 +273,7 @@ def _check_scalar(value, kind, m: Meta, error, where, key):
         or (m.below is not None and value >= m.below)
     ):
         fix = f"; {m.fix}" if m.fix else ""
-        raise _fail(error, where, key, f"must be {_range_text(m)}, got {value:g}{fix}")
+        raise _fail(error, where, key, f"must be {_range_text(m)}, got {value!r}{fix}")
     return value
 
 
@@ -571,7 +576,9 @@ def add_flags(parser, cls, names: Sequence[str], *, base=None, rename: Mapping |
         flag = flag_name(cls, name, rename)
         rng = range_text(m, hs[name])
         text = m.meaning + (f" ({rng})" if rng and inner is not bool else "")
-        text = f"{text} [{default_text(f, base)}]".replace("%", "%%")
+        shown = default_text(f, base)
+        shown = shown[1:-1] if isinstance(default, str) and shown == json.dumps(default) else shown
+        text = f"{text} [{shown}]".replace("%", "%%")
         if inner is bool:
             if default:
                 import argparse

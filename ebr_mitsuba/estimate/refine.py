@@ -58,30 +58,8 @@ as n = normalize(p_x, p_y, 1) of a free 2-vector p (always n_z > 0). Lobes (``lo
 when the environment lights a shot): log amplitude, log sharpness and a free axis vector
 (normalised inside the renderer).
 
-=================  =======  =========  ===============================================================
-option             type     default    meaning
-=================  =======  =========  ===============================================================
-``steps``          int      0          Adam iterations (0: no refinement)
-``lr``             float    0.02       Adam learning rate of the logit maps (diffuse, specular, roughness)
-``normal_lr``      float    0.002      Adam learning rate of the normal slopes (p_x, p_y)
-``final_lr_fraction`` float 0.1       every learning rate decays linearly to this fraction at the end
-``lobes``          bool     False      also optimise the SG lobes
-``lobe_lr``        float    0.01       learning rate of the lobe parameters
-``prior_weight``   float    1.0        w_prior
-``smooth_weight``  float    0.1        w_smooth
-``log_weight``     float    0.1        w_log
-``mode``           str      ``sg``     environment term of the renderer (``sg`` | ``quadrature``)
-``spp``            int      16         quadrature directions per pixel (``mode="quadrature"``)
-``log_every``      int      10         loss read back (host sync) every so many steps; the best
-                                       iterate is chosen among these reads
-``coarse_size``    int      128        coarse to fine: the coarsest level is at most 2× this; maps
-                                       of at most 2× this size refine in one level
-``level_ratio``    float    2.0        steps of a level ÷ steps of the next finer one
-``seconds``        float    None       time budget; None: no limit
-``irradiance_table`` int    64         ``sg`` mode: the diffuse environment term from a table of R²
-                                       normals (:mod:`ebr_mitsuba.render.env_sg`); 0: exact per pair
-``basis``          int      0          K > 0: the basis-material prior below; 0: per-pixel maps
-=================  =======  =========  ===============================================================
+Options: :class:`RefineConfig` (its table, generated from the field metadata, is in its docstring
+and in ``docs/config.md``).
 
 Basis-material prior (``basis`` = K > 0): one co-located view cannot separate specular F0 from
 roughness pixel by pixel, so specular and roughness are K basis materials (F0_k RGB, r_k, as
@@ -105,6 +83,7 @@ from ..geometry import Shot
 from ..metrics import image_errors
 from ..sgenv import SGEnvironment
 from ..svbrdf import SVBRDF
+from ..typedconfig import config, option
 
 _EPS = 1e-3
 REFINE_BYTES_PER_PIXEL = 600  # measured: a 2048² level took 2.5 GB (parameters, Adam, AD graph)
@@ -121,55 +100,70 @@ class ShotTarget:
     mask: np.ndarray
 
 
-@dataclass(frozen=True)
+@config(error=InputError, cli=True)
 class RefineConfig:
-    """Options of :func:`refine` (see the module table)."""
+    """Options of :func:`refine` (see the module docstring); a bad value is an
+    :class:`~ebr_mitsuba.errors.InputError` naming the ``ebr estimate`` flag where there is one."""
 
-    steps: int = 0
-    lr: float = 0.02
-    normal_lr: float = 0.002
-    final_lr_fraction: float = 0.1
-    lobes: bool = False
-    lobe_lr: float = 0.01
-    prior_weight: float = 1.0
-    smooth_weight: float = 0.1
-    log_weight: float = 0.1
-    mode: str = "sg"
-    spp: int = 16
-    log_every: int = 10
-    coarse_size: int = 128
-    level_ratio: float = 2.0
-    seconds: float | None = None
-    irradiance_table: int = 64
-    basis: int = 0
+    steps: int = option(0, "test-time refinement steps (0: no refinement)", minimum=0, flag="--refine-steps")
+    lr: float = option(
+        0.02,
+        "Adam learning rate of the logit maps (diffuse, specular, roughness)",
+        above=0,
+        flag="--refine-lr",
+    )
+    normal_lr: float = option(0.002, "Adam learning rate of the normal slopes (p_x, p_y)", above=0)
+    final_lr_fraction: float = option(
+        0.1, "every learning rate decays linearly to this fraction at the end", above=0, maximum=1
+    )
+    lobes: bool = option(False, "refine the SG lobes too", flag="--refine-lobes")
+    lobe_lr: float = option(0.01, "learning rate of the lobe parameters", above=0)
+    prior_weight: float = option(1.0, "w_prior", minimum=0)
+    smooth_weight: float = option(0.1, "w_smooth", minimum=0)
+    log_weight: float = option(0.1, "w_log", minimum=0)
+    mode: str = option(
+        "sg",
+        "environment term of the renderer",
+        choices=("sg", "quadrature"),
+        flag="--render-mode",
+        metavar="M",
+    )
+    spp: int = option(16, "quadrature directions per pixel (mode quadrature)")
+    log_every: int = option(
+        10,
+        "loss read back (host sync) every so many steps; the best iterate is chosen among these reads",
+        minimum=1,
+    )
+    coarse_size: int = option(
+        128,
+        "coarse to fine: the coarsest level is at most 2× this; maps of at most 2× this size refine in "
+        "one level",
+        minimum=4,
+    )
+    level_ratio: float = option(2.0, "steps of a level ÷ steps of the next finer one", minimum=1)
+    seconds: float | None = option(
+        None,
+        "time budget of the refinement in seconds; it stops there with a note",
+        above=0,
+        flag="--refine-seconds",
+        metavar="S",
+    )
+    irradiance_table: int = option(
+        64,
+        "sg mode: the diffuse environment term from a table of R² normals (ebr_mitsuba.render.env_sg); "
+        "0: exact per pair",
+    )
+    basis: int = option(
+        0,
+        "specular and roughness as K basis materials with per-pixel weights (0: per pixel)",
+        minimum=0,
+        maximum=MAX_BASIS,
+        flag="--refine-basis",
+        metavar="K",
+    )
 
-    def __post_init__(self):
-        if not isinstance(self.steps, int) or self.steps < 0:
-            raise InputError(f"--refine-steps {self.steps}: give an integer >= 0")
-        if self.seconds is not None and not (math.isfinite(self.seconds) and self.seconds > 0):
-            raise InputError(f"--refine-seconds {self.seconds}: give a time budget > 0 seconds")
-        if not (isinstance(self.coarse_size, int) and self.coarse_size >= 4):
-            raise InputError(f"refinement coarse_size {self.coarse_size}: give an integer >= 4")
-        if not (math.isfinite(self.level_ratio) and self.level_ratio >= 1):
-            raise InputError(f"refinement level_ratio {self.level_ratio}: give a value >= 1")
-        if not isinstance(self.log_every, int) or self.log_every < 1:
-            raise InputError(f"refinement log_every {self.log_every}: give an integer >= 1")
-        if not (math.isfinite(self.final_lr_fraction) and 0 < self.final_lr_fraction <= 1):
-            raise InputError(f"refinement final_lr_fraction {self.final_lr_fraction}: give a value in (0, 1]")
-        for name in ("lr", "normal_lr", "lobe_lr"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise InputError(f"refinement {name} {v}: give a finite value > 0")
-        for name in ("prior_weight", "smooth_weight", "log_weight"):
-            v = getattr(self, name)
-            if not (math.isfinite(v) and v >= 0):
-                raise InputError(f"refinement {name} {v}: give a finite value >= 0")
-        if self.mode not in ("sg", "quadrature"):
-            raise InputError(f"--render-mode {self.mode!r}: use sg or quadrature")
-        if not (isinstance(self.basis, int) and 0 <= self.basis <= MAX_BASIS):
-            raise InputError(
-                f"--refine-basis {self.basis}: give an integer in [0, {MAX_BASIS}] (0: per-pixel maps)"
-            )
+
+REFINE_FLAGS = ("steps", "lobes", "lr", "seconds", "basis", "mode")  # the fields ebr estimate sets
 
 
 @dataclass
