@@ -9,14 +9,8 @@ refused). The pipeline (quad-tree initialisation, merging, closed-form amplitude
 in ebr_mitsuba.extract and docs/extract-sg.md. The lobes are written as env.json (ebr-sg/1,
 z-up). --json prints {"lobes", "iterations", "seconds", "rel_rmse_exemplars", "loss_history"}.
 
-==============  ==========  ============================================================
-option          default     meaning
-==============  ==========  ============================================================
---max-lobes     64          lobe budget
---iters         400         Adam iterations
---env-mode      corrected   forward model in the loop (sg, quadrature, corrected)
---seed          0           pixel sampling seed
-==============  ==========  ============================================================
+The options ``--max-lobes``, ``--iters``, ``--env-mode``, ``--seed`` are fields of
+:class:`ebr_mitsuba.extract.ExtractConfig` (flags, defaults and help generated from its metadata).
 """
 
 from __future__ import annotations
@@ -24,34 +18,20 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import InputError
-from ..extract.config import ENV_MODES, ExtractConfig
+from ..extract.config import ExtractConfig
+from ..typedconfig import add_flags, from_args
 from ._common import emit_json, say
 
 NAME = "extract-sg"
 HELP = "extract dominant SG lobes from environment exemplars"
 
-_DEFAULTS = ExtractConfig()
+FLAGS = ("max_lobes", "iters", "env_mode", "seed")  # the ExtractConfig fields set from the command line
 
 
 def add_arguments(parser) -> None:
     parser.add_argument("exemplars", metavar="EXEMPLAR_DIR", help="directory written by `ebr exemplars`")
     parser.add_argument("--out", required=True, metavar="env.json", help="output SG environment")
-    parser.add_argument(
-        "--max-lobes",
-        type=int,
-        default=_DEFAULTS.max_lobes,
-        help=f"lobe budget (default {_DEFAULTS.max_lobes})",
-    )
-    parser.add_argument(
-        "--iters", type=int, default=_DEFAULTS.iters, help=f"Adam iterations (default {_DEFAULTS.iters})"
-    )
-    parser.add_argument(
-        "--env-mode",
-        default=_DEFAULTS.env_mode,
-        metavar="MODE",
-        help=f"forward model: one of {', '.join(ENV_MODES)} (default {_DEFAULTS.env_mode})",
-    )
-    parser.add_argument("--seed", type=int, default=_DEFAULTS.seed, help=f"seed (default {_DEFAULTS.seed})")
+    add_flags(parser, ExtractConfig, FLAGS)
     parser.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
 
 
@@ -69,7 +49,7 @@ def run(args) -> int:
             f"{args.exemplars}: holds {data.kind} exemplars; extract-sg needs environment exemplars "
             f"(`ebr exemplars` without --point-light)"
         )
-    config = ExtractConfig(max_lobes=args.max_lobes, iters=args.iters, env_mode=args.env_mode, seed=args.seed)
+    config = from_args(ExtractConfig, args, FLAGS)
     result = extract_sg(data.images, data.roughness, config=config, shot=data.shot, progress=True)
     result.env.save(out)
     if args.json:
