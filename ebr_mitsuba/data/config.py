@@ -8,60 +8,25 @@ file and the key (``materials[1].paths[0]``).
 
 ``[dataset]`` (:class:`DatasetSection`)
 
-==============  =======  ==========  =========================================================
-key             type     default     meaning
-==============  =======  ==========  =========================================================
-``seed``        int      0           data-set seed; sample i uses SeedSequence([seed, i, …])
-``count``       int      100         number of samples (≥ 1; ``--count`` overrides)
-``resolution``  int      256         H = W of every image and map, in [8, 4096]
-==============  =======  ==========  =========================================================
+.. options:: DatasetSection
 
 ``[capture]`` (:class:`CaptureSection`)
 
-===================  =====  ========  ==============================================================
-``setup``            str    "near"    ``near`` | ``near-far`` | ``five-light`` | ``multi-view``
-                                      (one setup per data set, so every sample has the same tensors)
-``flash_intensity``  float  10.0      point-light intensity, W/sr (> 0)
-===================  =====  ========  ==============================================================
+.. options:: CaptureSection
 
 ``[render]`` (:class:`RenderSection`)
 
-===============  =====  ==========  ================================================================
-``renderer``     str    "mitsuba"   ``mitsuba`` (path-traced, ``direct`` integrator) or ``fast``
-                                    (:mod:`ebr_mitsuba.render`, one shading point per pixel)
-``spp``          int    32          Mitsuba samples per pixel
-``integrator``   str    "direct"    Mitsuba integrator: ``direct`` | ``path``
-``fast_mode``    str    "sg"        fast renderer's environment term: ``sg`` | ``quadrature``
-``fast_spp``     int    64          fast renderer's quadrature directions per pixel
-===============  =====  ==========  ================================================================
+.. options:: RenderSection
 
 ``[exemplars]`` (:class:`ExemplarSection`): the uniform material (diffuse 0.1, specular 0.2,
 flat normal) at each roughness, seen from the near camera and rendered with the data set's renderer.
 
-===================  ===========  ======================  ===========================================
-``env_roughness``    list[float]  [0.1, 0.3, 0.6, 0.9]    environment exemplars (flash off); [] = none
-``point_roughness``  list[float]  [0.1, 0.3, 0.6, 0.9]    point-light exemplars (flash only); [] = none
-===================  ===========  ======================  ===========================================
+.. options:: ExemplarSection
 
 ``[camera]`` (:class:`CameraSection`): the LDR photo simulation applied to the shots, in this
 order: × exposure × white-balance gains → + noise → clip to [0, 1] → 8-bit sRGB.
 
-=================  ===========  ==============  ==========================================================
-``exposure``       float        1.0             base exposure (× radiance), > 0
-``exposure_ev``    [lo, hi]     [-0.5, 0.5]     per-sample exposure jitter in stops, uniform
-``white_balance``  float        0.05            R and B gains uniform in [1 − wb, 1 + wb] (G = 1), [0, 0.5)
-``read_noise``     [lo, hi]     [0.0, 0.005]    std of additive Gaussian noise, uniform per sample
-``shot_noise``     [lo, hi]     [0.0, 0.005]    signal-dependent variance per unit signal, uniform
-``clip``           bool         true            clip photos to [0, 1] (saturation)
-``quantize``       bool         true            8-bit sRGB PNG photos (needs ``clip``); else float EXR
-``meter``          float        0.0             auto exposure, as a camera meters: > 0 sets the base
-                                                exposure so that the 99th percentile of the
-                                                largest channel of the brightest shot lands at this
-                                                level (then × the ``exposure_ev`` jitter;
-                                                ``exposure`` is ignored);
-                                                0: the fixed ``exposure``. The exposure used is recorded
-                                                in ``sample.json`` (as EXIF would)
-=================  ===========  ==============  ==========================================================
+.. options:: CameraSection
 
 ``[[materials]]`` (at least one; *required* ``type``): sources drawn with probability ∝ ``weight``.
 
@@ -102,10 +67,8 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import math
 import os
 import re
-import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -113,8 +76,20 @@ import tomllib
 
 from ..errors import ConfigError, InputError
 from ..geometry import DEFAULT_EXEMPLAR_ROUGHNESS, DEFAULT_FLASH_INTENSITY, SETUPS
-from ..procedural import ENV_KINDS, INTENSITY_LEVELS
+from ..procedural import ENV_KINDS, FAMILIES, INTENSITY_LEVELS
 from ..scene import INTEGRATORS
+from ..typedconfig import (
+    Meta,
+    config,
+    convert,
+    convert_table,
+    document,
+    expand_path,
+    meta_of,
+    option,
+    rows,
+    unknown_keys,
+)
 
 RENDERERS = ("mitsuba", "fast")
 SPLITS = ("train", "test", "all")  # = .split.SPLITS
@@ -123,124 +98,184 @@ LEVELS = tuple(INTENSITY_LEVELS)
 MIN_RES, MAX_RES = 8, 4096
 
 
-def _meta(doc: str, **checks) -> dict:
-    return {"doc": doc, **checks}
-
-
-def _f(default, doc: str, **checks):
-    if isinstance(default, (list, dict)):
-        return field(default_factory=lambda d=default: type(d)(d), metadata=_meta(doc, **checks))
-    return field(default=default, metadata=_meta(doc, **checks))
-
-
 # -- sections ----------------------------------------------------------------------------------
 
+_PROB = {"minimum": 0.0, "maximum": 1.0}
 
-@dataclass(frozen=True)
+
+def _weight():
+    return option(1.0, "relative probability of this source", above=0)
+
+
+def _split():
+    return option(
+        "all",
+        "keep the train or test assets of the fixed test split, or all (see below)",
+        choices=SPLITS,
+    )
+
+
+@config
 class DatasetSection:
-    seed: int = _f(0, "data-set seed", minimum=0)
-    count: int = _f(100, "number of samples", minimum=1)
-    resolution: int = _f(256, "image and map size (square)", minimum=MIN_RES, maximum=MAX_RES)
+    """The ``[dataset]`` table."""
+
+    seed: int = option(0, "data-set seed; sample i uses SeedSequence([seed, i, …])", minimum=0)
+    count: int = option(100, "number of samples (--count overrides)", minimum=1)
+    resolution: int = option(256, "H = W of every image and map", minimum=MIN_RES, maximum=MAX_RES)
 
 
-@dataclass(frozen=True)
+@config
 class CaptureSection:
-    setup: str = _f("near", "capture setup", choices=SETUPS)
-    flash_intensity: float = _f(DEFAULT_FLASH_INTENSITY, "flash intensity W/sr", positive=True)
+    """The ``[capture]`` table."""
+
+    setup: str = option(
+        "near", "capture setup (one per data set, so every sample has the same tensors)", choices=SETUPS
+    )
+    flash_intensity: float = option(DEFAULT_FLASH_INTENSITY, "point-light intensity, W/sr", above=0)
 
 
-@dataclass(frozen=True)
+@config
 class RenderSection:
-    renderer: str = _f("mitsuba", "renderer", choices=RENDERERS)
-    spp: int = _f(32, "Mitsuba samples per pixel", minimum=1)
-    integrator: str = _f("direct", "Mitsuba integrator", choices=INTEGRATORS)
-    fast_mode: str = _f("sg", "fast renderer environment term", choices=FAST_MODES)
-    fast_spp: int = _f(64, "fast renderer quadrature directions", minimum=1)
+    """The ``[render]`` table."""
+
+    renderer: str = option(
+        "mitsuba",
+        "mitsuba (path-traced, direct integrator) or fast (ebr_mitsuba.render, one shading point per pixel)",
+        choices=RENDERERS,
+    )
+    spp: int = option(32, "Mitsuba samples per pixel", minimum=1)
+    integrator: str = option("direct", "Mitsuba integrator", choices=INTEGRATORS)
+    fast_mode: str = option("sg", "fast renderer's environment term", choices=FAST_MODES)
+    fast_spp: int = option(64, "fast renderer's quadrature directions per pixel", minimum=1)
 
 
-@dataclass(frozen=True)
+@config
 class ExemplarSection:
-    env_roughness: list[float] = _f(
-        list(DEFAULT_EXEMPLAR_ROUGHNESS), "environment exemplar roughness", unit=True
+    """The ``[exemplars]`` table."""
+
+    env_roughness: list[float] = option(
+        list(DEFAULT_EXEMPLAR_ROUGHNESS), "environment exemplars (flash off); [] = none", **_PROB
     )
-    point_roughness: list[float] = _f(
-        list(DEFAULT_EXEMPLAR_ROUGHNESS), "point-light exemplar roughness", unit=True
+    point_roughness: list[float] = option(
+        list(DEFAULT_EXEMPLAR_ROUGHNESS), "point-light exemplars (flash only); [] = none", **_PROB
     )
 
 
-@dataclass(frozen=True)
+@config
 class CameraSection:
-    exposure: float = _f(1.0, "base exposure", positive=True)
-    exposure_ev: tuple[float, float] = _f((-0.5, 0.5), "exposure jitter (stops)")
-    white_balance: float = _f(0.05, "white-balance gain jitter", minimum=0.0, below=0.5)
-    read_noise: tuple[float, float] = _f((0.0, 0.005), "read-noise std range", nonnegative=True)
-    shot_noise: tuple[float, float] = _f((0.0, 0.005), "shot-noise gain range", nonnegative=True)
-    clip: bool = _f(True, "clip photos to [0, 1]")
-    quantize: bool = _f(True, "8-bit sRGB photos")
-    meter: float = _f(
+    """The ``[camera]`` table."""
+
+    exposure: float = option(1.0, "base exposure (× radiance)", above=0)
+    exposure_ev: tuple[float, float] = option(
+        (-0.5, 0.5), "per-sample exposure jitter in stops, uniform in [lo, hi]", ordered=True
+    )
+    white_balance: float = option(
+        0.05, "R and B gains uniform in [1 − wb, 1 + wb] (G = 1)", minimum=0.0, below=0.5
+    )
+    read_noise: tuple[float, float] = option(
+        (0.0, 0.005),
+        "std of additive Gaussian noise, uniform per sample in [lo, hi]",
+        minimum=0,
+        ordered=True,
+    )
+    shot_noise: tuple[float, float] = option(
+        (0.0, 0.005),
+        "signal-dependent variance per unit signal, uniform in [lo, hi]",
+        minimum=0,
+        ordered=True,
+    )
+    clip: bool = option(True, "clip photos to [0, 1] (saturation)")
+    quantize: bool = option(True, "8-bit sRGB PNG photos (needs clip); else float EXR")
+    meter: float = option(
         0.0,
-        "auto exposure: the brightest shot's 99th-percentile channel value (0: off)",
-        minimum=0.0,
-        maximum=1.0,
+        "auto exposure, as a camera meters: > 0 sets the base exposure so that the 99th percentile "
+        "of the largest channel of the brightest shot lands at this level (then × the exposure_ev "
+        "jitter; exposure is ignored); 0: the fixed exposure. The exposure used is recorded in "
+        "sample.json (as EXIF would)",
+        **_PROB,
     )
 
 
-@dataclass(frozen=True)
+@config
 class ProceduralMaterials:
-    type: str = _f("procedural", "source type")
-    weight: float = _f(1.0, "relative probability", positive=True)
-    families: list[str] = _f([], "procedural families (empty: all)", family=True)
-    augment: bool = _f(True, "random augmentation")
-    blend: float = _f(0.3, "probability of blending two materials", minimum=0.0, maximum=1.0)
+    """``[[materials]]`` with ``type = "procedural"``."""
+
+    type: str = option("procedural", "source type")
+    weight: float = _weight()
+    families: list[str] = option([], "procedural families (empty: all)", choices=FAMILIES)
+    augment: bool = option(True, "random augmentation")
+    blend: float = option(0.3, "probability of blending with a second material of the source", **_PROB)
 
 
-@dataclass(frozen=True)
+@config
 class DirectoryMaterials:
-    type: str = _f("directory", "source type")
-    weight: float = _f(1.0, "relative probability", positive=True)
-    paths: list[str] = _f(
-        [], "material directories or texture sets (glob patterns allowed)", path="dir", required=True
+    """``[[materials]]`` with ``type = "directory"``."""
+
+    type: str = option("directory", "source type")
+    weight: float = _weight()
+    paths: list[str] = option(
+        [],
+        "material directories or Poly Haven / ambientCG texture sets (glob patterns allowed)",
+        required=True,
+        nonempty=True,
+        extra={"path": "dir"},
     )
-    augment: bool = _f(True, "random augmentation")
-    blend: float = _f(0.0, "probability of blending two materials", minimum=0.0, maximum=1.0)
-    split: str = _f("all", "keep the train or test assets of the fixed test split, or all", choices=SPLITS)
+    augment: bool = option(True, "random augmentation")
+    blend: float = option(0.0, "probability of blending with a second material of the source", **_PROB)
+    split: str = _split()
 
 
-@dataclass(frozen=True)
+@config
 class ProceduralEnvironments:
-    type: str = _f("procedural", "source type")
-    weight: float = _f(1.0, "relative probability", positive=True)
-    kinds: list[str] = _f(list(ENV_KINDS), "procedural kinds", choices=ENV_KINDS, nonempty=True)
-    levels: list[str] = _f(list(LEVELS), "intensity levels", choices=LEVELS, nonempty=True)
+    """``[[environments]]`` with ``type = "procedural"``."""
+
+    type: str = option("procedural", "source type")
+    weight: float = _weight()
+    kinds: list[str] = option(list(ENV_KINDS), "procedural kinds", choices=ENV_KINDS, nonempty=True)
+    levels: list[str] = option(list(LEVELS), "intensity levels", choices=LEVELS, nonempty=True)
 
 
-@dataclass(frozen=True)
+@config
 class EquirectEnvironments:
-    type: str = _f("equirect", "source type")
-    weight: float = _f(1.0, "relative probability", positive=True)
-    paths: list[str] = _f(
-        [], "equirectangular .hdr/.exr maps (glob patterns allowed)", path="file", required=True
+    """``[[environments]]`` with ``type = "equirect"``."""
+
+    type: str = option("equirect", "source type")
+    weight: float = _weight()
+    paths: list[str] = option(
+        [],
+        "equirectangular .hdr/.exr maps (glob patterns allowed)",
+        required=True,
+        nonempty=True,
+        extra={"path": "file"},
     )
-    split: str = _f("all", "keep the train or test assets of the fixed test split, or all", choices=SPLITS)
-    levels: list[str] = _f(list(LEVELS), "intensity levels ([]: as in the file)", choices=LEVELS)
-    rotate: bool = _f(True, "random rotation about z")
-    lobes: int = _f(32, "SG ground-truth lobes", minimum=1, maximum=512)
-    fit_iterations: int = _f(400, "SG fit Adam iterations", minimum=0)
+    split: str = _split()
+    levels: list[str] = option(
+        list(LEVELS),
+        "scale each map so its irradiance on the sample is that level × the flash's ([]: as in the file)",
+        choices=LEVELS,
+    )
+    rotate: bool = option(True, "random rotation about z")
+    lobes: int = option(32, "SG ground-truth fit lobes", minimum=1, maximum=512)
+    fit_iterations: int = option(400, "SG fit Adam iterations", minimum=0)
 
 
-@dataclass(frozen=True)
+@config
 class SGEnvironments:
-    type: str = _f("sg", "source type")
-    weight: float = _f(1.0, "relative probability", positive=True)
-    paths: list[str] = _f([], "env.json files", path="file", required=True)
-    levels: list[str] = _f([], "intensity levels ([]: as in the file)", choices=LEVELS)
-    rotate: bool = _f(True, "random rotation about z")
+    """``[[environments]]`` with ``type = "sg"``."""
+
+    type: str = option("sg", "source type")
+    weight: float = _weight()
+    paths: list[str] = option([], "env.json files", required=True, nonempty=True, extra={"path": "file"})
+    levels: list[str] = option([], "intensity levels ([]: as in the file)", choices=LEVELS)
+    rotate: bool = option(True, "random rotation about z")
 
 
-@dataclass(frozen=True)
+@config
 class NoEnvironment:
-    type: str = _f("none", "source type")
-    weight: float = _f(1.0, "relative probability", positive=True)
+    """``[[environments]]`` with ``type = "none"``: dark."""
+
+    type: str = option("none", "source type")
+    weight: float = _weight()
 
 
 MATERIAL_TYPES = {"procedural": ProceduralMaterials, "directory": DirectoryMaterials}
@@ -278,7 +313,7 @@ class GenerateConfig:
 
     def with_count(self, count: int) -> GenerateConfig:
         """The config with ``dataset.count`` replaced (the ``--count`` override)."""
-        _check_int(count, "--count", self.source, minimum=1)
+        count = convert(count, int, Meta("", minimum=1), where=self.source, key="--count")
         return dataclasses.replace(self, dataset=dataclasses.replace(self.dataset, count=int(count)))
 
     def with_changes(self, section: str, **changes) -> GenerateConfig:
@@ -314,46 +349,8 @@ def _jsonable(value):
 # -- parsing -----------------------------------------------------------------------------------
 
 
-def _type_name(value) -> str:
-    if isinstance(value, bool):
-        return "a boolean"
-    if isinstance(value, int):
-        return "an integer"
-    if isinstance(value, float):
-        return "a number"
-    if isinstance(value, str):
-        return f"a string ({value!r})"
-    if isinstance(value, list):
-        return "a list"
-    if isinstance(value, dict):
-        return "a table"
-    return type(value).__name__
-
-
 def _err(source: str, key: str, msg: str) -> ConfigError:
-    return ConfigError(f"{source}: '{key}' {msg}")
-
-
-def _check_int(value, key: str, source: str, minimum=None, maximum=None) -> int:
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise _err(source, key, f"must be an integer (got {_type_name(value)})")
-    if minimum is not None and value < minimum:
-        raise _err(source, key, f"must be >= {minimum} (got {value})")
-    if maximum is not None and value > maximum:
-        raise _err(source, key, f"must be <= {maximum} (got {value})")
-    return int(value)
-
-
-def _check_number(value, key: str, source: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise _err(source, key, f"must be a number (got {_type_name(value)})")
-    value = float(value)
-    if not math.isfinite(value):
-        raise _err(source, key, f"must be finite (got {value})")
-    return value
-
-
-_VAR = re.compile(r"\$(\w+)|\$\{(\w+)\}")
+    return ConfigError(f"{source}: {key}: {msg}")
 
 
 _GLOB_CHARS = re.compile(r"[*?\[]")
@@ -378,19 +375,7 @@ def _resolve_paths(text: str, key: str, source: str, base: Path, kind: str) -> l
 
 
 def _resolve_path(text: str, key: str, source: str, base: Path, kind: str | None) -> str:
-    for match in _VAR.finditer(text):
-        name = match.group(1) or match.group(2)
-        if name not in os.environ:
-            raise _err(
-                source,
-                key,
-                f"uses ${name}, which is not set; export {name} "
-                f"(e.g. EBR_DATA_DIR=/path/to/shared/data) or write the path out",
-            )
-    path = Path(os.path.expanduser(os.path.expandvars(text)))
-    if not path.is_absolute():
-        path = base / path
-    path = Path(os.path.normpath(path))
+    path = Path(os.path.normpath(expand_path(text, base, where=source, key=key)))
     if kind == "dir" and not path.is_dir():
         raise _err(source, key, f"names {path}, which is not an existing directory; fix the path")
     if kind == "file" and not path.is_file():
@@ -398,95 +383,19 @@ def _resolve_path(text: str, key: str, source: str, base: Path, kind: str | None
     return str(path)
 
 
-def _convert(value, hint, meta: dict, key: str, source: str, base: Path):
-    origin = typing.get_origin(hint)
-    if hint is bool:
-        if not isinstance(value, bool):
-            raise _err(source, key, f"must be true or false (got {_type_name(value)})")
-        return value
-    if hint is int:
-        return _check_int(value, key, source, meta.get("minimum"), meta.get("maximum"))
-    if hint is float:
-        value = _check_number(value, key, source)
-        if meta.get("positive") and value <= 0:
-            raise _err(source, key, f"must be > 0 (got {value})")
-        if "minimum" in meta and value < meta["minimum"]:
-            raise _err(source, key, f"must be >= {meta['minimum']} (got {value})")
-        if "maximum" in meta and value > meta["maximum"]:
-            raise _err(source, key, f"must be <= {meta['maximum']} (got {value})")
-        if "below" in meta and value >= meta["below"]:
-            raise _err(source, key, f"must be < {meta['below']} (got {value})")
-        return value
-    if hint is str:
-        if not isinstance(value, str):
-            raise _err(source, key, f"must be a string (got {_type_name(value)})")
-        choices = meta.get("choices")
-        if choices and value not in choices:
-            raise _err(source, key, f"is {value!r}; use one of {', '.join(choices)}")
-        return value
-    if origin is tuple:  # a [lo, hi] range
-        if not isinstance(value, list) or len(value) != 2:
-            raise _err(source, key, f"must be a list [low, high] of two numbers (got {_type_name(value)})")
-        lo, hi = (_check_number(v, f"{key}[{i}]", source) for i, v in enumerate(value))
-        if lo > hi:
-            raise _err(source, key, f"is [{lo}, {hi}]; low must be <= high")
-        if meta.get("nonnegative") and lo < 0:
-            raise _err(source, key, f"must be >= 0 (got [{lo}, {hi}])")
-        return (lo, hi)
-    if origin is list:
-        (inner,) = typing.get_args(hint)
-        if not isinstance(value, list):
-            raise _err(source, key, f"must be a list (got {_type_name(value)})")
-        if meta.get("nonempty") and not value:
-            raise _err(source, key, "must not be empty")
-        out = []
-        for i, item in enumerate(value):
-            k = f"{key}[{i}]"
-            if inner is float:
-                v = _check_number(item, k, source)
-                if meta.get("unit") and not 0.0 <= v <= 1.0:
-                    raise _err(source, k, f"must be in [0, 1] (got {v})")
-                out.append(v)
-            else:
-                if not isinstance(item, str):
-                    raise _err(source, k, f"must be a string (got {_type_name(item)})")
-                if meta.get("choices") and item not in meta["choices"]:
-                    raise _err(source, k, f"is {item!r}; use one of {', '.join(meta['choices'])}")
-                if meta.get("family"):
-                    from ..procedural import FAMILIES
-
-                    if item not in FAMILIES:
-                        raise _err(
-                            source,
-                            k,
-                            f"is {item!r}, not a procedural family; use one of {', '.join(FAMILIES)}",
-                        )
-                if meta.get("path"):
-                    out.extend(_resolve_paths(item, k, source, base, meta["path"]))
-                    continue
-                out.append(item)
-        return out
-    raise TypeError(f"config schema: unsupported field type {hint!r} for {key}")  # pragma: no cover
-
-
 def _parse_table(cls, table, key: str, source: str, base: Path):
-    if not isinstance(table, dict):
-        raise _err(source, key, f"must be a table (got {_type_name(table)})")
-    fields = {f.name: f for f in dataclasses.fields(cls)}
-    hints = typing.get_type_hints(cls)
-    unknown = sorted(set(table) - set(fields))
-    if unknown:
-        where = f"{key}.{unknown[0]}"
-        raise _err(source, where, f"is not a known key; {key} takes {', '.join(fields)}")
-    values = {}
-    for name, f in fields.items():
-        if name in table:
-            values[name] = _convert(table[name], hints[name], dict(f.metadata), f"{key}.{name}", source, base)
-        elif f.metadata.get("required"):
-            raise _err(source, f"{key}.{name}", "is required")
-    if "paths" in fields and not values.get("paths"):
-        raise _err(source, f"{key}.paths", "must list at least one path")
-    if "split" in fields and "paths" in values:
+    """One table: the engine's checks (:func:`ebr_mitsuba.typedconfig.convert_table`), then the
+    path fields resolved (and filtered by ``split``)."""
+    values = convert_table(cls, table, source, key=key)
+    for f in dataclasses.fields(cls):
+        kind = meta_of(f).extra.get("path")
+        if kind and f.name in values:
+            values[f.name] = [
+                p
+                for i, text in enumerate(values[f.name])
+                for p in _resolve_paths(text, f"{key}.{f.name}[{i}]", source, base, kind)
+            ]
+    if "paths" in values and "split" in {f.name for f in dataclasses.fields(cls)}:
         values["paths"] = _apply_split(table, values, key, source, base)
     return cls(**values)
 
@@ -533,7 +442,7 @@ def _parse_sources(items, key: str, types: dict, source: str, base: Path) -> tup
         if kind is None:
             raise _err(source, f"{k}.type", f"is required; use one of {', '.join(types)}")
         if kind not in types:
-            raise _err(source, f"{k}.type", f"is {kind!r}; use one of {', '.join(types)}")
+            raise _err(source, f"{k}.type", f"got {kind!r}; use one of {', '.join(types)}")
         out.append(_parse_table(types[kind], item, k, source, base))
     if not out:
         raise _err(source, key, f"needs at least one [[{key}]] table")
@@ -543,9 +452,7 @@ def _parse_sources(items, key: str, types: dict, source: str, base: Path) -> tup
 def parse_config(doc: dict, source: str = "<memory>", base_dir: str | Path = ".") -> GenerateConfig:
     """Validate a parsed TOML document (see the module docstring)."""
     base = Path(base_dir)
-    unknown = sorted(set(doc) - set(SECTIONS) - set(ARRAYS))
-    if unknown:
-        raise _err(source, unknown[0], f"is not a known table; use {', '.join([*SECTIONS, *ARRAYS])}")
+    unknown_keys(doc, [*SECTIONS, *ARRAYS], where=source, noun="table")
     values = {
         name: _parse_table(cls, doc.get(name, {}), name, source, base) for name, cls in SECTIONS.items()
     }
@@ -602,26 +509,20 @@ def load_config(path: str | Path) -> GenerateConfig:
 
 
 def schema_table() -> list[tuple[str, str, str, str]]:
-    """(key, type, default, meaning) of every table key, for the docs."""
-    rows = []
+    """(key, type, default, meaning) of every table key, for the docs (from the field metadata)."""
     groups = (
         list(SECTIONS.items())
         + [(f"materials ({t})", c) for t, c in MATERIAL_TYPES.items()]
         + [(f"environments ({t})", c) for t, c in ENVIRONMENT_TYPES.items()]
     )
-    for name, cls in groups:
-        hints = typing.get_type_hints(cls)
-        for f in dataclasses.fields(cls):
-            if f.default is not dataclasses.MISSING:
-                default = f.default
-            else:
-                default = f.default_factory()
-            rows.append(
-                (
-                    f"{name}.{f.name}",
-                    getattr(hints[f.name], "__name__", str(hints[f.name])),
-                    json.dumps(_jsonable(default)),
-                    f.metadata.get("doc", ""),
-                )
-            )
-    return rows
+    return [(k, t, d, m) for name, cls in groups for k, t, d, _, m in rows(cls, prefix=f"{name}.")]
+
+
+__doc__ = document(
+    __doc__,
+    DatasetSection=DatasetSection,
+    CaptureSection=CaptureSection,
+    RenderSection=RenderSection,
+    ExemplarSection=ExemplarSection,
+    CameraSection=CameraSection,
+)
