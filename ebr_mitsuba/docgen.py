@@ -3,7 +3,9 @@
 ``python -m ebr_mitsuba.docgen [--out docs]`` (run by ``make docs``) writes
 
 * ``cli.md``: every ``ebr`` subcommand's usage, options and description (its ``--help``);
-* ``plugins.md``: each Mitsuba plugin's class docstring (parameter table, XML example).
+* ``plugins.md``: each Mitsuba plugin's class docstring (parameter table, XML example);
+* ``config.md``: every typed config's option table (key, type, default, range, meaning), from
+  the field metadata of :mod:`ebr_mitsuba.typedconfig`.
 """
 
 from __future__ import annotations
@@ -86,12 +88,74 @@ def plugins_page() -> str:
     return "".join(out)
 
 
+def config_sections() -> list[tuple[str, str, type, object]]:
+    """(title, key prefix, config class, preset or None) of every documented config, in pipeline
+    order."""
+    from .data import config as data
+    from .estimate.refine import RefineConfig
+    from .exemplar.select import SELECT_PRESETS, SelectConfig
+    from .extract.config import EXTRACT_PRESETS, ExtractConfig
+    from .insert import InsertConfig
+    from .nets import CascadeConfig, DualLossConfig, LightingNetConfig, NAFNetSize
+    from .nets.mair_config import MAIRConfig, MAIRSize, UNetSize
+    from .train import config as train
+
+    out = [(f"`ebr generate` [{name}]", f"{name}.", cls, None) for name, cls in data.SECTIONS.items()]
+    out += [
+        (f"`ebr generate` [[materials]] type = {t!r}", "", c, None) for t, c in data.MATERIAL_TYPES.items()
+    ]
+    out += [
+        (f"`ebr generate` [[environments]] type = {t!r}", "", c, None)
+        for t, c in data.ENVIRONMENT_TYPES.items()
+    ]
+    out += [
+        ("`ebr extract-sg` (ExtractConfig, preset `default`)", "", ExtractConfig, None),
+        ("`ebr select-exemplars` (SelectConfig, preset `default`)", "", SelectConfig, None),
+        ("test-time refinement (RefineConfig)", "", RefineConfig, None),
+        ("`ebr insert` (InsertConfig)", "", InsertConfig, None),
+    ]
+    out += [(f"`ebr train` [{name}]", f"{name}.", cls, None) for name, cls in train.TABLES.items()]
+    out += [
+        (
+            "`ebr train` [selection] (preset `training`)",
+            "selection.",
+            SelectConfig,
+            SELECT_PRESETS["training"],
+        ),
+        ("`ebr train` [extract] (preset `training`)", "extract.", ExtractConfig, EXTRACT_PRESETS["training"]),
+        ("networks: LightingNetConfig", "", LightingNetConfig, None),
+        ("networks: CascadeConfig", "", CascadeConfig, None),
+        ("networks: NAFNetSize", "", NAFNetSize, None),
+        ('networks: DualLossConfig (`kind = "dualloss"` [model])', "model.", DualLossConfig, None),
+        ("networks: MAIRConfig", "", MAIRConfig, None),
+        ("networks: MAIRSize", "", MAIRSize, None),
+        ("networks: UNetSize", "", UNetSize, None),
+    ]
+    return out
+
+
+def config_page() -> str:
+    """Every config's option table, generated from the field metadata."""
+    from .typedconfig import markdown_table
+
+    out = [
+        HEADER,
+        "# Configuration reference\n\n",
+        "Every typed config of the toolkit, generated from its field metadata "
+        "(`ebr_mitsuba.typedconfig`): the same metadata checks files and builds the command-line "
+        "flags. Errors read `FILE: KEY: PROBLEM; FIX`.\n\n",
+    ]
+    for title, prefix, cls, base in config_sections():
+        out.append(f"## {title}\n\n{markdown_table(cls, prefix=prefix, base=base)}\n\n")
+    return "".join(out)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m ebr_mitsuba.docgen", description=__doc__)
     p.add_argument("--out", type=Path, default=Path("docs"))
     args = p.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
-    for name, page in (("cli.md", cli_page()), ("plugins.md", plugins_page())):
+    for name, page in (("cli.md", cli_page()), ("plugins.md", plugins_page()), ("config.md", config_page())):
         atomic_write_text(args.out / name, page)
         print(f"wrote {args.out / name}")
     return 0

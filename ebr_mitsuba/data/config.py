@@ -217,7 +217,6 @@ class DirectoryMaterials:
         [],
         "material directories or Poly Haven / ambientCG texture sets (glob patterns allowed)",
         required=True,
-        nonempty=True,
         extra={"path": "dir"},
     )
     augment: bool = option(True, "random augmentation")
@@ -245,7 +244,6 @@ class EquirectEnvironments:
         [],
         "equirectangular .hdr/.exr maps (glob patterns allowed)",
         required=True,
-        nonempty=True,
         extra={"path": "file"},
     )
     split: str = _split()
@@ -265,7 +263,7 @@ class SGEnvironments:
 
     type: str = option("sg", "source type")
     weight: float = _weight()
-    paths: list[str] = option([], "env.json files", required=True, nonempty=True, extra={"path": "file"})
+    paths: list[str] = option([], "env.json files", required=True, extra={"path": "file"})
     levels: list[str] = option([], "intensity levels ([]: as in the file)", choices=LEVELS)
     rotate: bool = option(True, "random rotation about z")
 
@@ -395,6 +393,8 @@ def _parse_table(cls, table, key: str, source: str, base: Path):
                 for i, text in enumerate(values[f.name])
                 for p in _resolve_paths(text, f"{key}.{f.name}[{i}]", source, base, kind)
             ]
+    if "paths" in values and not values["paths"]:
+        raise _err(source, f"{key}.paths", "must list at least one path")
     if "paths" in values and "split" in {f.name for f in dataclasses.fields(cls)}:
         values["paths"] = _apply_split(table, values, key, source, base)
     return cls(**values)
