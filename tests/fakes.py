@@ -1,14 +1,13 @@
-"""Shared test doubles for ``ebr estimate``: a fake network module and a small synthetic capture.
+"""Shared test doubles for ``ebr estimate``: a fake model and a small synthetic capture.
 
-``fake_inference(grid)`` stands in for :mod:`ebr_mitsuba.train.inference` with the documented
-``load_model`` / ``predict`` contract (uniform maps, one SG lobe, no network);
+``FakePredictor(grid)`` is a :class:`ebr_mitsuba.model.predictor.Predictor` (uniform maps, one SG
+lobe, no network); ``use_fake_model(monkeypatch, grid)`` makes ``ebr estimate`` load it;
 ``write_pair(folder, seed, lobes)`` renders a flash / no-flash pair of a random-diffuse plate with
 the fast renderer (``flash.exr``, ``noflash.exr``) and returns the folder.
 """
 
 from __future__ import annotations
 
-import types
 from pathlib import Path
 
 import numpy as np
@@ -18,25 +17,34 @@ SUN = ([0.3, 0.2, 0.93], 20.0, [4.0, 3.5, 3.0])
 SKY = ([0.0, 0.0, 1.0], 1.0, [0.3, 0.3, 0.35])
 
 
-def fake_inference(grid: int = GRID) -> types.ModuleType:
-    """The ``load_model``/``predict`` contract of :mod:`ebr_mitsuba.train.inference`, without a network."""
-    from ebr_mitsuba.sgenv import SGEnvironment
-    from ebr_mitsuba.svbrdf import SVBRDF
-    from ebr_mitsuba.train.inference import Prediction  # the real result type, before any patching
+class FakePredictor:
+    """The :class:`ebr_mitsuba.model.predictor.Predictor` contract without a network (uniform maps,
+    one SG lobe)."""
 
-    class Bundle:
-        resolution = grid
+    takes_far = True
 
-    def predict(bundle, flash, noflash, far_flash=None, far_noflash=None, *, extract_config=None):
+    def __init__(self, grid: int = GRID):
+        self.grid = grid
+
+    def predict(self, flash, noflash, far_flash=None, far_noflash=None):
+        from ebr_mitsuba.model.predictor import Prediction
+        from ebr_mitsuba.sgenv import SGEnvironment
+        from ebr_mitsuba.svbrdf import SVBRDF
+
         n = flash.shape[0]
         maps = SVBRDF.uniform(n, n, 0.3, 0.04, 0.5)
         env = SGEnvironment(np.array([[0.0, 0.0, 1.0]]), np.array([2.0]), np.array([[0.5, 0.5, 0.5]]))
         return Prediction(maps, env, [flash * 0.1], np.maximum(flash - noflash, 0))
 
-    mod = types.ModuleType("ebr_mitsuba.train.inference")
-    mod.load_model = lambda path: Bundle()
-    mod.predict = predict
-    return mod
+
+def use_fake_model(monkeypatch, grid: int = GRID) -> FakePredictor:
+    """``ebr estimate`` (and ``demo``, ``gallery``) load a :class:`FakePredictor` instead of a
+    model: it replaces :func:`ebr_mitsuba.estimate.pipeline.load_predictor`."""
+    from ebr_mitsuba.estimate import pipeline
+
+    fake = FakePredictor(grid)
+    monkeypatch.setattr(pipeline, "load_predictor", lambda checkpoint: fake)
+    return fake
 
 
 def write_pair(folder: Path, seed: int, lobes=(SUN,), grid: int = GRID) -> Path:

@@ -128,10 +128,10 @@ def test_extract_sg_library_call_is_deterministic_under_set_deterministic(exempl
 def test_estimate_same_files(tmp_path, capsys, monkeypatch):
     """Two deterministic estimates (fake network, 5 refinement steps): identical bytes for every
     file but the timings (``estimate.json``'s timing fields, report.html)."""
-    from fakes import SKY, SUN, fake_inference, write_pair
+    from fakes import SKY, SUN, use_fake_model, write_pair
 
     write_pair(tmp_path, seed=1, lobes=(SUN, SKY))
-    monkeypatch.setitem(sys.modules, "ebr_mitsuba.train.inference", fake_inference())
+    use_fake_model(monkeypatch)
     outs = [tmp_path / f"est{k}" for k in range(2)]
     for out in outs:
         assert (

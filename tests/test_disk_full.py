@@ -14,7 +14,6 @@ import errno
 import os
 import pathlib
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -181,10 +180,10 @@ def test_json_writer_full(tmp_path, capsys, full_json, exemplar_dir):
 
 
 def test_estimate_output_directory_full(tmp_path, capsys, monkeypatch):
-    from fakes import GRID, fake_inference, write_pair
+    from fakes import GRID, use_fake_model, write_pair
 
     inputs = write_pair(tmp_path / "in", seed=0)
-    monkeypatch.setitem(sys.modules, "ebr_mitsuba.train.inference", fake_inference(GRID))
+    use_fake_model(monkeypatch, GRID)
     state = {"writes": 0}
     import OpenEXR
 

@@ -2,17 +2,15 @@
 report, refinement and the demo/gallery plumbing (full resolution above the model grid:
 tests/test_fullres.py).
 
-The network is replaced by a fake inference module (the documented ``load_model``/``predict``
-contract) that returns plausible maps and a two-lobe environment, so these tests need no trained
-model; ``test_real_model_end_to_end`` (slow) runs the shipped one. Captures are rendered at
+The network is replaced by a fake :class:`~ebr_mitsuba.model.predictor.Predictor` (``grid``,
+``takes_far``, ``predict``) that returns plausible maps and a two-lobe environment, so these tests
+need no trained model; ``test_real_model_end_to_end`` (slow) runs the shipped one. Captures are rendered at
 48-64 px with the fast renderer (exact for the flash term, closed-form SG environment).
 """
 
 from __future__ import annotations
 
 import json
-import sys
-import types
 from pathlib import Path
 
 import numpy as np
@@ -22,9 +20,9 @@ from ebr_mitsuba.cli import main
 from ebr_mitsuba.errors import InputError
 from ebr_mitsuba.geometry import far_shot, near_shot
 from ebr_mitsuba.imageio import write_exr, write_png
+from ebr_mitsuba.model.predictor import Prediction
 from ebr_mitsuba.sgenv import SGEnvironment
 from ebr_mitsuba.svbrdf import SVBRDF
-from ebr_mitsuba.train.inference import Prediction
 
 GRID = 48
 ENV = SGEnvironment(
@@ -34,28 +32,31 @@ ENV = SGEnvironment(
 )
 
 
-# -- fake inference ---------------------------------------------------------------------------------
+# -- fake model ---------------------------------------------------------------------------------------
 
 
-class FakeBundle:
-    resolution = GRID
+class FakePredictor:
+    """A :class:`ebr_mitsuba.model.predictor.Predictor` without a network: plausible maps from the
+    flash-only image and a two-lobe environment; each ``predict`` call is counted in ``calls``."""
 
+    grid = GRID
+    takes_far = True
 
-FakePrediction = Prediction  # the fake network returns the real result type
+    def __init__(self, calls: list):
+        self.calls = calls
 
-
-def _fake_module(calls: list):
-    mod = types.ModuleType("ebr_mitsuba.train.inference")
-
-    def load_model(path):
+    def load(self, path):
+        """Stands in for :func:`ebr_mitsuba.estimate.pipeline.load_predictor`."""
         if path is not None and Path(path).read_bytes()[:9] != b"FAKE-CKPT":
             raise InputError(
                 f"{path}: not an ebr model checkpoint (wrong kind); give a checkpoint of `ebr train`"
             )
-        return FakeBundle()
+        return self
 
-    def predict(bundle, flash, noflash, far_flash=None, far_noflash=None, *, extract_config=None):
-        calls.append({"shape": flash.shape, "noflash": noflash is not None, "far": far_flash is not None})
+    def predict(self, flash, noflash, far_flash=None, far_noflash=None):
+        self.calls.append(
+            {"shape": flash.shape, "noflash": noflash is not None, "far": far_flash is not None}
+        )
         assert flash.shape == (GRID, GRID, 3) and flash.dtype == np.float32
         fo = flash if noflash is None else np.maximum(flash - noflash, 0)
         lum = fo.mean(axis=-1, keepdims=True)
@@ -68,18 +69,16 @@ def _fake_module(calls: list):
             roughness=np.full((h, w), 0.5, np.float32),
         )
         env = None if noflash is None else ENV.scaled(0.8)
-        return FakePrediction(
-            maps, env, [fo * 0.1, fo * 0.2], fo, {"roughness": [0.2, 0.6]}, {"lighting": 0.01}
-        )
-
-    mod.load_model, mod.predict = load_model, predict
-    return mod
+        return Prediction(maps, env, [fo * 0.1, fo * 0.2], fo, {"roughness": [0.2, 0.6]}, {"lighting": 0.01})
 
 
 @pytest.fixture
 def fake_net(monkeypatch):
+    """``ebr estimate``, ``demo`` and ``gallery`` load the fake model (the calls of its ``predict``)."""
+    from ebr_mitsuba.estimate import pipeline
+
     calls: list = []
-    monkeypatch.setitem(sys.modules, "ebr_mitsuba.train.inference", _fake_module(calls))
+    monkeypatch.setattr(pipeline, "load_predictor", FakePredictor(calls).load)
     return calls
 
 
@@ -546,10 +545,9 @@ def test_estimate_max_size_at_the_grid(tmp_path, capsys, fake_net):
 
 def test_real_model_end_to_end(tmp_path, capsys):
     """The shipped model on a generated near capture."""
-    from ebr_mitsuba.estimate.resample import model_grid
-    from ebr_mitsuba.train import inference
+    from ebr_mitsuba.model.predict import load_predictor
 
-    grid = model_grid(inference.load_model(None))
+    grid = load_predictor(None).grid
     paths = _write_capture(tmp_path, n=grid)
     out = tmp_path / "est"
     code, stdout, err = _estimate(
@@ -584,10 +582,9 @@ def test_real_model_near_far_and_real_flash_only_photo(tmp_path, capsys, data_di
     and the refinement, with a warning) and on a real flash-only phone photo (256², estimated at
     --max-size 128: full resolution above the 64² grid, downscaled with a warning)."""
     from ebr_mitsuba.capture import capture
-    from ebr_mitsuba.estimate.resample import model_grid
-    from ebr_mitsuba.train import inference
+    from ebr_mitsuba.model.predict import load_predictor
 
-    grid = model_grid(inference.load_model(None))
+    grid = load_predictor(None).grid
     cap = tmp_path / "cap"
     capture(_material(grid), ENV, "near-far", cap, spp=4, res=grid, progress=False)
     out = tmp_path / "nf"

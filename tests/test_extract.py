@@ -143,9 +143,10 @@ def test_forward_equals_exemplar_images(mode):
     import drjit as dr
     import mitsuba as mi
 
+    from ebr_mitsuba.exemplar.images import exemplar_images
     from ebr_mitsuba.extract.forward import ExemplarGeometry
     from ebr_mitsuba.geometry import near_shot
-    from ebr_mitsuba.render import DrLobes, RenderOptions, exemplar_images
+    from ebr_mitsuba.render import DrLobes, RenderOptions
 
     env = _sun_sky()
     opts = RenderOptions(mode=mode, spp=8)
@@ -299,8 +300,8 @@ def test_cli_exemplars_then_extract(tmp_path, capsys):
 
 
 def test_exemplar_dir_with_mixed_sizes_is_refused(tmp_path):
+    from ebr_mitsuba.exemplar.files import exemplar_file
     from ebr_mitsuba.extract import read_exemplars, write_exemplars
-    from ebr_mitsuba.extract.exemplar_io import exemplar_file
     from ebr_mitsuba.geometry import near_shot
     from ebr_mitsuba.imageio import write_exr
 

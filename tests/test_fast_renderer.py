@@ -16,12 +16,12 @@ import pytest
 
 from ebr_mitsuba import reference
 from ebr_mitsuba.errors import ConfigError, InputError
+from ebr_mitsuba.exemplar.images import exemplar_images
 from ebr_mitsuba.geometry import NEAR_DISTANCE, near_shot, pixel_positions, view_directions
 from ebr_mitsuba.render import (
     DrLobes,
     DrMaps,
     RenderOptions,
-    exemplar_images,
     render,
     render_numpy,
     view_shot,

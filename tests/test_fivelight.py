@@ -24,7 +24,7 @@ from ebr_mitsuba.errors import ConfigError
 from ebr_mitsuba.estimate import fivelight
 from ebr_mitsuba.geometry import FIVE_LIGHT_POSITIONS
 from ebr_mitsuba.imageio import read_exr, write_exr
-from ebr_mitsuba.train import checkpoint as ck
+from ebr_mitsuba.model import checkpoint as ck
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
@@ -78,7 +78,7 @@ def _lines(err: str) -> list[str]:
 
 def _net_maps(model: Path, photos: list[np.ndarray]):
     """The dual-loss network's maps for five (H, W, 3) photos, straight from the checkpoint."""
-    from ebr_mitsuba.train.inference import load_model
+    from ebr_mitsuba.model.predict import load_model
 
     bundle = load_model(model, expect_kind="dualloss")
     x = torch.from_numpy(np.stack(photos).astype(np.float32)).permute(0, 3, 1, 2)[None]
@@ -90,7 +90,7 @@ def _net_maps(model: Path, photos: list[np.ndarray]):
 
 
 def test_dualloss_checkpoint_carries_only_its_tables_and_loads(dl_model, tiny5, capsys):
-    from ebr_mitsuba.train.inference import load_model
+    from ebr_mitsuba.model.predict import load_model
 
     data = ck.load_checkpoint(dl_model, expect_kind="dualloss")
     assert data["kind"] == "dualloss" and set(data["model"]) == {"dualloss"}
@@ -109,8 +109,8 @@ def test_dualloss_checkpoint_carries_only_its_tables_and_loads(dl_model, tiny5, 
 def test_old_dualloss_checkpoint_with_default_stages_loads(dl_model, tiny5, tmp_path, capsys):
     """A checkpoint written before the fix (a default [stages], empty [selection] / [extract] in
     its config) loads, evaluates and estimates like a new one."""
+    from ebr_mitsuba.model.predict import load_model
     from ebr_mitsuba.train.config import StageSteps, config_from_dict
-    from ebr_mitsuba.train.inference import load_model
 
     old = torch.load(dl_model, weights_only=True)
     stages = dataclasses.asdict(StageSteps())

@@ -11,8 +11,6 @@ model on a capture above its grid and counts the lighting net's calls.
 from __future__ import annotations
 
 import json
-import sys
-import types
 from pathlib import Path
 
 import numpy as np
@@ -73,66 +71,65 @@ def _estimate(args, capsys):
     return code, cap.out, cap.err
 
 
-# -- the inference module behind a fake lighting stage ----------------------------------------------
+# -- the shipped model behind a fake lighting stage ----------------------------------------------------
 
 
 @pytest.fixture(scope="module")
 def shipped():
-    from ebr_mitsuba.train.inference import load_model
+    from ebr_mitsuba.model.predict import load_predictor
 
-    return load_model(None)
+    return load_predictor(None)
 
 
-def _fake_lighting_module(bundle, calls: list):
-    """``load_model`` → the shipped bundle; ``predict_lighting`` → the true environment ``ENV``
-    and fixed exemplars (counted in ``calls``); the cascade functions are the real ones."""
-    from ebr_mitsuba.extract.select import Selection, env_exemplar_images, point_exemplar_images
-    from ebr_mitsuba.train import inference
+def _fake_lighting_predictor(shipped, calls: list):
+    """The shipped model with ``predict_lighting`` → the true environment ``ENV`` and fixed
+    exemplars (counted in ``calls``); the cascade's methods are the real ones."""
+    from ebr_mitsuba.exemplar.images import env_exemplar_images, point_exemplar_images
+    from ebr_mitsuba.exemplar.select import Selection
+    from ebr_mitsuba.model.predict import ModelPredictor
+    from ebr_mitsuba.model.predictor import Lighting, Prediction
 
-    mod = types.ModuleType("ebr_mitsuba.train.inference")
+    class FakeLighting(ModelPredictor):
+        def predict_lighting(self, flash, noflash, far_flash=None, far_noflash=None, *, progress=None, **_):
+            calls.append({"shape": flash.shape, "noflash": noflash is not None})
+            g = self.grid
+            assert flash.shape == (g, g, 3)
+            rough = (0.4, 0.1, 0.9)
+            env = None if noflash is None else ENV
+            fo = flash if noflash is None else np.maximum(flash - noflash, 0)
+            env_sel = (
+                None
+                if env is None
+                else Selection(rough, {}, env_exemplar_images(env, rough, g, g, None, "sg", 1))
+            )
+            if progress is not None:
+                progress(3, 3, "done")
+            return Lighting(
+                g,
+                env,
+                [],
+                fo,
+                None,
+                {"env": env_sel, "point": Selection(rough, {}, point_exemplar_images(rough, g, g))},
+            )
 
-    def predict_lighting(b, flash, noflash, far_flash=None, far_noflash=None, *, progress=None, **_):
-        calls.append({"shape": flash.shape, "noflash": noflash is not None})
-        g = b.resolution
-        assert flash.shape == (g, g, 3)
-        rough = (0.4, 0.1, 0.9)
-        env = None if noflash is None else ENV
-        fo = flash if noflash is None else np.maximum(flash - noflash, 0)
-        env_sel = (
-            None
-            if env is None
-            else Selection(rough, {}, env_exemplar_images(env, rough, g, g, None, "sg", 1))
-        )
-        if progress is not None:
-            progress(3, 3, "done")
-        return inference.Lighting(
-            g,
-            env,
-            [],
-            fo,
-            None,
-            {"env": env_sel, "point": Selection(rough, {}, point_exemplar_images(rough, g, g))},
-        )
+        def predict(self, flash, noflash, far_flash=None, far_noflash=None, **_):
+            lighting = self.predict_lighting(flash, noflash)
+            inputs = self.grid_pass_inputs(lighting, flash, noflash)
+            maps = self.cascade_pass(inputs, lighting.env).maps.to_svbrdf(0)
+            return Prediction(maps, lighting.env, [], lighting.flash_only, lighting.selection)
 
-    def predict(b, flash, noflash, far_flash=None, far_noflash=None, **_):
-        lighting = predict_lighting(b, flash, noflash)
-        inputs = inference.grid_pass_inputs(b, lighting, flash, noflash)
-        maps = inference.cascade_pass(b, inputs, lighting.env).maps.to_svbrdf(0)
-        return inference.Prediction(maps, lighting.env, [], lighting.flash_only, lighting.selection)
-
-    mod.load_model = lambda path: bundle
-    mod.predict_lighting = predict_lighting
-    mod.predict = predict
-    mod.grid_pass_inputs = inference.grid_pass_inputs
-    mod.cascade_pass = inference.cascade_pass
-    mod.PassInputs = inference.PassInputs
-    return mod
+    return FakeLighting(shipped.bundle)
 
 
 @pytest.fixture
 def fake_lighting(monkeypatch, shipped):
+    """``ebr estimate`` loads the shipped model behind the fake lighting stage (its calls)."""
+    from ebr_mitsuba.estimate import pipeline
+
     calls: list = []
-    monkeypatch.setitem(sys.modules, "ebr_mitsuba.train.inference", _fake_lighting_module(shipped, calls))
+    fake = _fake_lighting_predictor(shipped, calls)
+    monkeypatch.setattr(pipeline, "load_predictor", lambda checkpoint: fake)
     return calls
 
 
@@ -255,9 +252,10 @@ def test_full_pass_inputs_at_the_grid_size_are_the_grid_inputs():
         full_pass_inputs,
         point_exemplars_at,
     )
-    from ebr_mitsuba.extract.select import Selection, env_exemplar_images, point_exemplar_images
+    from ebr_mitsuba.exemplar.images import env_exemplar_images, point_exemplar_images
+    from ebr_mitsuba.exemplar.select import Selection
     from ebr_mitsuba.imageio import resize_area
-    from ebr_mitsuba.train.inference import Lighting
+    from ebr_mitsuba.model.predictor import Lighting
 
     g = 32
     photos = _photos(g)
@@ -297,10 +295,10 @@ def test_cascade_window_renders_are_crops_of_the_full_render():
     """The cascade's renders of a window (a tile) equal the crops of the full-grid renders."""
     import torch
 
+    from ebr_mitsuba.model.renders import diffuse_flash_renderer, photo_renderer
     from ebr_mitsuba.nets import Maps
     from ebr_mitsuba.nets.drwrap import lobes_from_env
     from ebr_mitsuba.render import RenderOptions
-    from ebr_mitsuba.train.renders import diffuse_flash_renderer, photo_renderer
 
     n = 40
     m = Maps.from_svbrdf([_material(n)])
@@ -518,16 +516,18 @@ def test_real_model_lighting_runs_once_above_the_grid(tmp_path, monkeypatch):
     cascade's three networks once at the grid and once per tile."""
     from ebr_mitsuba.estimate import fullres
     from ebr_mitsuba.estimate.pipeline import EstimateConfig, run_estimate
-    from ebr_mitsuba.train.inference import load_model
+    from ebr_mitsuba.model.predict import load_predictor
 
-    bundle = load_model(None)
+    predictor = load_predictor(None)
     calls = {"lighting": 0}
-    bundle.lighting.register_forward_hook(lambda *a: calls.__setitem__("lighting", calls["lighting"] + 1))
-    monkeypatch.setattr(fullres, "PASS_MEMORY", fullres.pass_bytes(bundle.cascade, 64 * 64))
+    predictor.bundle.lighting.register_forward_hook(
+        lambda *a: calls.__setitem__("lighting", calls["lighting"] + 1)
+    )
+    monkeypatch.setattr(fullres, "PASS_MEMORY", fullres.pass_bytes(predictor.cascade, 64 * 64))
     paths = _write_capture(tmp_path / "cap", 96)
     summary = run_estimate(
         EstimateConfig(flash=str(paths["flash"]), noflash=str(paths["noflash"]), out=str(tmp_path / "est")),
-        bundle=bundle,
+        predictor=predictor,
     )
     assert calls["lighting"] == 1
     assert summary["resolution"] == 96 and summary["tiles"] == 4

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -219,9 +218,9 @@ def test_truth_equal_to_estimate_gives_zero(tmp_path, capsys, sun_capture):
 
 def test_on_the_output_of_ebr_estimate(tmp_path, capsys, monkeypatch):
     """`ebr estimate` (its pipeline with a fake network) → `ebr insert --truth`."""
-    from fakes import fake_inference
+    from fakes import use_fake_model
 
-    monkeypatch.setitem(sys.modules, "ebr_mitsuba.train.inference", fake_inference(32))
+    use_fake_model(monkeypatch, 32)
     cap = _capture(tmp_path / "cap", SUN_ENV)
     est = tmp_path / "est"
     code, _, err = run_cli(

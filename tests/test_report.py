@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import re
-import sys
 import types
 
 import numpy as np
@@ -22,12 +21,11 @@ from ebr_mitsuba.imageio import clip_hue, read_ldr, write_png
 @pytest.fixture(scope="module")
 def estimate_dir(tmp_path_factory):
     """One estimate (fake network, 20 refinement steps: two loss points) into ``.../my_estimate``."""
-    from fakes import fake_inference, write_pair
+    from fakes import use_fake_model, write_pair
 
     tmp = write_pair(tmp_path_factory.mktemp("report"), seed=2)
-    saved = sys.modules.get("ebr_mitsuba.train.inference")
-    sys.modules["ebr_mitsuba.train.inference"] = fake_inference()
-    try:
+    with pytest.MonkeyPatch.context() as monkeypatch:
+        use_fake_model(monkeypatch)
         out = tmp / "my_estimate"
         assert (
             main(
@@ -47,11 +45,6 @@ def estimate_dir(tmp_path_factory):
             )
             == 0
         )
-    finally:
-        if saved is None:
-            sys.modules.pop("ebr_mitsuba.train.inference", None)
-        else:
-            sys.modules["ebr_mitsuba.train.inference"] = saved
     return out
 
 

@@ -1,4 +1,4 @@
-"""Adaptive exemplar selection (ebr_mitsuba.extract.select) and ``ebr select-exemplars``.
+"""Adaptive exemplar selection (ebr_mitsuba.exemplar.select) and ``ebr select-exemplars``.
 
 Targets are uniform materials of known roughness rendered with the fast renderer (quadrature,
 256 directions, another seed than the selection's bases) at 48², with albedos unlike the exemplar
@@ -16,12 +16,11 @@ import pytest
 
 from ebr_mitsuba import cli
 from ebr_mitsuba.errors import ConfigError, InputError
-from ebr_mitsuba.extract.select import (
+from ebr_mitsuba.exemplar.images import env_exemplar_images, point_exemplar_images
+from ebr_mitsuba.exemplar.select import (
     SelectConfig,
     Selection,
-    env_exemplar_images,
     global_ssim,
-    point_exemplar_images,
     select_exemplars,
     structural_score,
 )

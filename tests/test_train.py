@@ -20,7 +20,7 @@ import torch
 
 from ebr_mitsuba.cli import main
 from ebr_mitsuba.errors import ConfigError, InputError
-from ebr_mitsuba.train import checkpoint as ck
+from ebr_mitsuba.model import checkpoint as ck
 from ebr_mitsuba.train.config import PHASES, load_config, parse_config
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -325,8 +325,8 @@ def test_ddp_two_cpu_processes(tiny, tmp_path):
 
 def test_predict_and_flash_only(tiny, tiny_model):
     from ebr_mitsuba.data.dataset import GeneratedDataset
+    from ebr_mitsuba.model.predict import load_model, predict
     from ebr_mitsuba.svbrdf import SVBRDF
-    from ebr_mitsuba.train.inference import load_model, predict
 
     bundle = load_model(tiny_model)
     assert bundle.resolution == 32 and not bundle.cascade.training
@@ -353,7 +353,7 @@ def test_predict_and_flash_only(tiny, tiny_model):
 
 
 def test_shipped_model_loads():
-    from ebr_mitsuba.train.inference import load_model, shipped_model_path
+    from ebr_mitsuba.model.predict import load_model, shipped_model_path
 
     if not shipped_model_path().is_file():
         pytest.skip("no shipped model in this checkout")
@@ -421,7 +421,7 @@ def test_bench_models_page(tiny, tiny_model, tmp_path, monkeypatch):
     """``ebr bench models`` on tiny data: every predictor scored on the same samples, the page,
     the contact sheet and the plots written, the acceptance lines computed."""
     from ebr_mitsuba.bench import models
-    from ebr_mitsuba.train import inference
+    from ebr_mitsuba.model import predict as inference
 
     for name in ("EBR_SPLIT_DATA", "EBR_TRAIN_DATA", "EBR_SHIPPED_RUN", "EBR_CANDIDATES", "EBR_REFINE"):
         monkeypatch.delenv(name, raising=False)

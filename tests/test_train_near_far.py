@@ -4,7 +4,7 @@ A tiny near-far data set (4 samples at 32², fast renderer, configs/data_tiny_ne
 ``tiny_nf`` fixture of tests/conftest.py, generated once per test run) is shared, and
 configs/train_tiny_near_far.toml trains two steps of every phase on it through the CLI; the
 trained model then predicts from the four shots, and the training path of
-stage 2 is checked against :func:`ebr_mitsuba.train.inference.predict` on the same sample.
+stage 2 is checked against :func:`ebr_mitsuba.model.predict.predict` on the same sample.
 """
 
 from __future__ import annotations
@@ -75,7 +75,7 @@ def test_every_phase_trains_two_steps(run_nf):
     assert len(rows) == 1 + 2 * len(PHASES)
     assert len(list((run_nf / "cache" / "stage1").glob("*.npz"))) == 4
     assert len(list((run_nf / "cache" / "stage2").glob("*.npz"))) == 2  # finetune_samples = 2
-    from ebr_mitsuba.train.checkpoint import load_checkpoint
+    from ebr_mitsuba.model.checkpoint import load_checkpoint
 
     data = load_checkpoint(run_nf / "model.pt")
     assert data["data"]["setup"] == "near-far" and data["config"]["model"]["capture"] == "near-far"
@@ -83,8 +83,8 @@ def test_every_phase_trains_two_steps(run_nf):
 
 def test_predict_from_four_shots(tiny_nf, run_nf):
     from ebr_mitsuba.data.dataset import GeneratedDataset
+    from ebr_mitsuba.model.predict import load_model, predict
     from ebr_mitsuba.svbrdf import SVBRDF
-    from ebr_mitsuba.train.inference import load_model, predict
 
     bundle = load_model(run_nf / "model.pt")
     assert bundle.lighting.config.num_shots == 4 and bundle.cascade.config.num_photos == 4
@@ -104,7 +104,7 @@ def test_stage2_training_path_matches_predict(tiny_nf, run_nf):
     """The finetune phase's cascade inputs (cached lighting, SGs, selections; photos; far
     flash-only image) are the ones predict builds: the same weights give the same maps."""
     from ebr_mitsuba.data.dataset import GeneratedDataset
-    from ebr_mitsuba.train.inference import predict
+    from ebr_mitsuba.model.predict import predict
     from ebr_mitsuba.train.trainer import Trainer
 
     with pytest.MonkeyPatch.context() as mp:
@@ -147,8 +147,8 @@ def test_setup_mismatch_is_one_line_exit_2(tiny, tiny_nf, tmp_path, capsys, monk
 
 
 def test_near_far_cascade_needs_far_flash_only():
+    from ebr_mitsuba.model.renders import cascade_forward
     from ebr_mitsuba.nets import Cascade
-    from ebr_mitsuba.train.renders import cascade_forward
 
     size = {"width": 4, "enc_blk_nums": [1], "middle_blk_num": 1, "dec_blk_nums": [1]}
     doc = {"data": {"train": "x"}, "model": {"capture": "near-far", "size": size}}

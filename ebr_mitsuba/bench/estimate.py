@@ -305,49 +305,48 @@ def measure_table(size: int, resolutions) -> list[dict]:
     return rows
 
 
-def measure_errors_in_process(bundle, capture_dir: Path, sizes) -> dict[int, dict]:
+def measure_errors_in_process(predictor, capture_dir: Path, sizes) -> dict[int, dict]:
     """Per working size: the per-map errors of the estimate of the capture at ``capture_dir``
     (lighting once at the grid, :func:`~ebr_mitsuba.estimate.fullres.predict_maps` per size, the
-    grid size through ``predict``) against its truth."""
+    grid size through ``predict``) against its truth. ``predictor``: a
+    :class:`~ebr_mitsuba.model.predictor.StagedPredictor`."""
     from ..estimate import fullres
     from ..estimate.metrics import map_rmse
     from ..imageio import read_exr, resize_area
     from ..materials import load_material
-    from ..train import inference as inf
 
-    g = bundle.resolution
+    g = predictor.grid
     truth = load_material(capture_dir / "maps")
     shots = {k: read_exr(capture_dir / f"{k}.exr") for k in ("flash", "noflash")}
     grid = {k: resize_area(v, (g, g)) for k, v in shots.items()}
-    lighting = inf.predict_lighting(bundle, grid["flash"], grid["noflash"])
+    lighting = predictor.predict_lighting(grid["flash"], grid["noflash"])
     out = {
-        g: map_rmse(maps_at(inf.predict(bundle, grid["flash"], grid["noflash"]).maps, truth.shape[0]), truth)
+        g: map_rmse(maps_at(predictor.predict(grid["flash"], grid["noflash"]).maps, truth.shape[0]), truth)
     }
     for size in sizes:
         photos = {k: v if v.shape[0] == size else resize_area(v, (size, size)) for k, v in shots.items()}
-        maps = fullres.predict_maps(inf, bundle, lighting, photos, grid).maps
+        maps = fullres.predict_maps(predictor, lighting, photos, grid).maps
         out[size] = map_rmse(maps_at(maps, truth.shape[0]), truth)
     return out
 
 
-def measure_tiles(bundle, capture_dir: Path, size: int) -> dict:
+def measure_tiles(predictor, capture_dir: Path, size: int) -> dict:
     """One pass against forced tiles (about a quarter of the image each) at ``size``²: seconds and
     the mean absolute difference of the maps relative to their mean."""
     from ..estimate import fullres
     from ..imageio import read_exr, resize_area
-    from ..train import inference as inf
 
-    g = bundle.resolution
+    g = predictor.grid
     photos = {k: resize_area(read_exr(capture_dir / f"{k}.exr"), (size, size)) for k in ("flash", "noflash")}
     grid = {k: resize_area(v, (g, g)) for k, v in photos.items()}
-    lighting = inf.predict_lighting(bundle, grid["flash"], grid["noflash"])
+    lighting = predictor.predict_lighting(grid["flash"], grid["noflash"])
     out = {}
     for label, memory in (
         ("one pass", None),
-        ("tiles", fullres.pass_bytes(bundle.cascade, (size // 2 + 64) ** 2)),
+        ("tiles", fullres.pass_bytes(predictor.cascade, (size // 2 + 64) ** 2)),
     ):
         t0 = time.perf_counter()
-        pred = fullres.predict_maps(inf, bundle, lighting, photos, grid, pass_memory=memory)
+        pred = fullres.predict_maps(predictor, lighting, photos, grid, pass_memory=memory)
         out[label] = {
             "seconds": time.perf_counter() - t0,
             "maps": pred.maps,
@@ -727,7 +726,7 @@ def run(out_dir: Path, quick: bool = False, progress: Callable[[str], None] | No
     from ..estimate.metrics import map_rmse
     from ..fsutil import atomic_write_text
     from ..materials import load_material
-    from ..train.inference import load_model
+    from ..model.predict import load_predictor
     from ..variant import ensure_variant
 
     say = progress or _say
@@ -736,8 +735,8 @@ def run(out_dir: Path, quick: bool = False, progress: Callable[[str], None] | No
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
-    bundle = load_model(None)
-    grid = int(bundle.resolution)
+    predictor = load_predictor(None)
+    grid = predictor.grid
     runs, errors = {}, {}
     with tempfile.TemporaryDirectory(prefix="ebr-bench-estimate-") as work:
         work = Path(work)
@@ -816,13 +815,13 @@ def run(out_dir: Path, quick: bool = False, progress: Callable[[str], None] | No
                 progress=False,
             )
             second = measure_errors_in_process(
-                bundle, cap2, [s for s in settings.sizes if s <= settings.capture_res]
+                predictor, cap2, [s for s in settings.sizes if s <= settings.capture_res]
             )
         say("[estimate] FLOPs, peaks and knobs ...")
         peaks = {"isa": isa_peak(), "gemm": gemm_peak(4096 if not quick else 1024)}
-        flops = measure_flops(bundle, settings.flops_size)
+        flops = measure_flops(predictor.bundle, settings.flops_size)
         table = measure_table(settings.flops_size, settings.table_sizes)
-        tiles = measure_tiles(bundle, cap, settings.flops_size)
+        tiles = measure_tiles(predictor, cap, settings.flops_size)
     plot_time(runs, out_dir / "estimate_time.png")
     plot_error(errors, out_dir / "estimate_error.png")
     plot_flops(flops, peaks, out_dir / "estimate_flops.png")

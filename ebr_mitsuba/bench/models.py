@@ -364,6 +364,7 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
     from ..data.dataset import GeneratedDataset
     from ..estimate.refine import RefineConfig
     from ..fsutil import atomic_write_text
+    from ..model.predict import load_model, load_predictor
     from ..train.baselines import MeanMaps
     from ..train.evaluate import (
         _truth,
@@ -375,7 +376,6 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
         model_predictor,
         oracle_predictor,
     )
-    from ..train.inference import load_model
 
     data = os.environ.get("EBR_SPLIT_DATA")
     if not data or not Path(data).is_dir():
@@ -424,7 +424,7 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
         log(f"[bench models] {label['estimate']}, with and without refinement")
         stores: dict[str, list] = {}
         many = evaluate_many(
-            _recording_many(estimate_predictor(load_model(None), data, refine_cfg), stores),
+            _recording_many(estimate_predictor(load_predictor(None), data, refine_cfg), stores),
             data,
             limit=n,
             seed=0,
@@ -504,7 +504,7 @@ def _acceptance(results: dict) -> list[str]:
 
 
 def _model_card(summary: dict | None, run_dir: str | None) -> list[str]:
-    from ..train.inference import load_model, shipped_model_path
+    from ..model.predict import load_model, shipped_model_path
 
     bundle = load_model(None)
     params = sum(p.numel() for net in bundle.nets().values() for p in net.parameters())

@@ -127,8 +127,8 @@ def lighting_error(estimated, truth, res: int = 64) -> dict:
     """RMSE and relative RMSE of exemplars (roughness 0.1, 0.3, 0.6, 0.9) rendered under the
     estimated vs the true SGs (:func:`ebr_mitsuba.metrics.lighting_error`), fast renderer, near
     camera."""
+    from ..exemplar.images import exemplar_images
     from ..metrics import lighting_error as error
-    from ..render import exemplar_images
     from ..sgenv import SGEnvironment
 
     est = [
@@ -213,9 +213,8 @@ def _check_out(out: Path) -> None:
 
 def run(args) -> int:
     from ..capture import capture
-    from ..estimate.pipeline import EstimateConfig, inference_module, run_estimate
+    from ..estimate.pipeline import EstimateConfig, load_predictor, run_estimate
     from ..estimate.refine import RefineConfig
-    from ..estimate.resample import model_grid
     from ..fsutil import atomic_write_text
     from ..sgenv import SGEnvironment
 
@@ -226,8 +225,8 @@ def run(args) -> int:
         raise InputError(f"--checkpoint {args.checkpoint}: no such file; omit it for the shipped model")
     if args.spp < 1 or args.refine_steps < 0:
         raise InputError("--spp must be >= 1 and --refine-steps >= 0")
-    bundle = inference_module().load_model(args.checkpoint)  # before rendering: a bad checkpoint fails fast
-    grid = model_grid(bundle)
+    predictor = load_predictor(args.checkpoint)  # before rendering: a bad checkpoint fails fast
+    grid = int(predictor.grid)
     res = int(args.res or grid)
     truth, env = default_material(res), default_env()
     timings = {}
@@ -246,7 +245,7 @@ def run(args) -> int:
         checkpoint=args.checkpoint,
         refine=RefineConfig(steps=args.refine_steps),
     )
-    summary = run_estimate(cfg, truth=truth, log=say, bar=progress, bundle=bundle)
+    summary = run_estimate(cfg, truth=truth, log=say, bar=progress, predictor=predictor)
     timings["estimate"] = round(time.perf_counter() - t, 3)
     est_env = (
         SGEnvironment.load(out / "estimate" / "env.json")

@@ -85,6 +85,7 @@ def _line(name: str, m: dict) -> str:
 
 def run(args) -> int:
     from ..errors import InputError
+    from ..model.predict import load_model
     from ..train.baselines import MeanMaps
     from ..train.evaluate import (
         evaluate,
@@ -94,7 +95,6 @@ def run(args) -> int:
         model_predictor,
         oracle_predictor,
     )
-    from ..train.inference import load_model
 
     if args.limit < 0:
         raise InputError(f"--limit {args.limit}: give a count >= 0")

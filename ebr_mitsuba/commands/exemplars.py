@@ -7,7 +7,7 @@
 E is an env.json, an equirectangular .exr/.hdr or procedural:SEED. Environment exemplars are
 rendered with the flash off; with --point-light, the near flash alone lights them (E is then
 ignored). DIR receives one EXR per exemplar and exemplars.json (format ebr-exemplars/1, see
-ebr_mitsuba.extract.exemplar_io); `ebr extract-sg DIR` reads it.
+ebr_mitsuba.exemplar.files); `ebr extract-sg DIR` reads it.
 
 =================  ========  ==============================================================
 option             default   meaning
@@ -30,7 +30,7 @@ import time
 from pathlib import Path
 
 from ..errors import InputError
-from ..exemplar import EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR
+from ..exemplar.images import RENDERERS
 from ..geometry import DEFAULT_EXEMPLAR_ROUGHNESS
 from ._common import emit_json, say
 
@@ -38,7 +38,6 @@ NAME = "exemplars"
 HELP = "render environment (or point-light) exemplars of the uniform exemplar material"
 
 DEFAULT_ROUGHNESS = ",".join(f"{r:g}" for r in DEFAULT_EXEMPLAR_ROUGHNESS)
-RENDERERS = ("mitsuba", "fast")
 DEFAULT_RES = 256
 DEFAULT_SPP = 256
 
@@ -84,64 +83,11 @@ def parse_roughness(text: str) -> list[float]:
     return values
 
 
-def render_exemplars(
-    env_spec: str | None,
-    roughness: list[float],
-    point_light: bool,
-    renderer: str,
-    res: int,
-    spp: int,
-    seed: int,
-):
-    """The exemplar images (list of (res, res, 3) float32), the shot and the env record."""
-    import numpy as np
-
-    from ..capture import render_shot, shot_seed
-    from ..geometry import near_shot
-    from ..sources import parse_env
-    from ..svbrdf import SVBRDF
-
-    if renderer not in RENDERERS:
-        raise InputError(f"--renderer {renderer!r}: use one of {', '.join(RENDERERS)}")
-    if not 16 <= res <= 4096:
-        raise InputError(f"--res must be in [16, 4096] (got {res})")
-    if spp < 1 or seed < 0:
-        raise InputError(f"--spp must be >= 1 and --seed >= 0 (got {spp}, {seed})")
-    if point_light:
-        shot = near_shot(True, env=False)
-        source = None
-    else:
-        if env_spec is None:
-            raise InputError("--env is required for environment exemplars (or give --point-light)")
-        shot = near_shot(False)
-        source = parse_env(env_spec)
-    material = [SVBRDF.uniform(res, res, EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR, r) for r in roughness]
-    if renderer == "mitsuba":
-        emitter = None if source is None else source.emitter_dict()
-        images = [render_shot(m, emitter, shot, spp, shot_seed(seed, k)) for k, m in enumerate(material)]
-    else:
-        from ..render import RenderOptions, exemplar_images, render_numpy
-
-        if point_light:
-            images = [render_numpy(m, None, shot) for m in material]
-        else:
-            if source.kind != "sg":
-                raise InputError(
-                    f"--env {env_spec}: the fast renderer needs an SG environment (env.json or "
-                    f"procedural:SEED); use --renderer mitsuba for an equirectangular map"
-                )
-            opts = RenderOptions(mode="quadrature", spp=spp, seed=seed)
-            images = [
-                np.asarray(t.numpy(), np.float32)
-                for t in exemplar_images(source.sg, roughness, res, res, shot=shot, options=opts)
-            ]
-    return images, shot, (None if source is None else source.to_json())
-
-
 def run(args) -> int:
     import mitsuba as mi
 
-    from ..extract.exemplar_io import META, exemplar_file, write_exemplars
+    from ..exemplar.files import META, exemplar_file, write_exemplars
+    from ..exemplar.images import render_exemplars
 
     roughness = parse_roughness(args.roughness)
     t0 = time.perf_counter()

@@ -57,7 +57,7 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     from ..errors import InputError
     from ..fsutil import sigterm_as_exit
-    from ..train.checkpoint import export_model
+    from ..model.checkpoint import export_model
     from ..train.config import load_config
     from ..train.ddp import shutdown
     from ..train.trainer import Trainer

@@ -14,7 +14,7 @@ mitsuba     :func:`ebr_mitsuba.capture.render_shot` (``svbrdf`` BSDF plugin, ``d
             integrator, ``spp`` samples, box filter). SG environments through the ``sgenvmap``
             emitter; map-lit samples through Mitsuba's ``envmap`` of the map itself, rotated about z
             and scaled. Sampler seed of render j: ``SampleDraw.render_seeds[j]``.
-fast        :func:`ebr_mitsuba.render.render_numpy` / :func:`~ebr_mitsuba.render.exemplar_images`
+fast        :func:`ebr_mitsuba.render.render_numpy` / :func:`~ebr_mitsuba.exemplar.images.exemplar_images`
             (``fast_mode`` ``sg`` closed form or ``quadrature`` with ``fast_spp`` directions).
             Map-lit samples are rendered under the map's SG fit (the fast renderer knows only SGs).
             Shots outside the sample grid (multi-view) are texture-space renders (see
@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..exemplar import EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR
+from ..exemplar.images import exemplar_material
 from ..geometry import Shot, near_shot, setup_shots
 from ..svbrdf import SVBRDF
 from .config import GenerateConfig
@@ -59,10 +59,6 @@ class CleanImages:
 def shots_of(config: GenerateConfig) -> list[Shot]:
     """The shots of the config's setup."""
     return setup_shots(config.capture.setup, intensity=config.capture.flash_intensity)
-
-
-def exemplar_material(size: int, roughness: float) -> SVBRDF:
-    return SVBRDF.uniform(size, size, EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR, float(roughness))
 
 
 def has_flash_only(shot: Shot) -> bool:
@@ -135,7 +131,8 @@ class _Fast:
         return None
 
     def env_exemplars(self, roughness, size: int, shot: Shot, seeds) -> list:
-        from ..render import RenderOptions, exemplar_images
+        from ..exemplar.images import exemplar_images
+        from ..render import RenderOptions
 
         if self.env is None:
             return [np.zeros((size, size, 3), np.float32) for _ in roughness]

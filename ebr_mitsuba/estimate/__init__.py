@@ -18,6 +18,8 @@ module         contents
 ``gallery``    flash-only estimates of a photo folder as a docs page
 =============  ===================================================================================
 
-The network itself lives in :mod:`ebr_mitsuba.train.inference` (``load_model``, ``predict``);
-importing this package imports neither torch nor Mitsuba.
+Pipeline order: capture → ``inputs`` (and ``resample``) → the model (:mod:`ebr_mitsuba.model`, a
+:class:`~ebr_mitsuba.model.predictor.Predictor` that :func:`~.pipeline.run_estimate` takes as an
+argument; ``fullres`` runs its cascade above the grid) → ``refine`` → ``outputs`` and ``report``.
+Importing this package imports neither torch nor Mitsuba.
 """

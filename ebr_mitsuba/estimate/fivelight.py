@@ -164,7 +164,7 @@ def model_path(checkpoint: str | None) -> Path:
 def load_dualloss(path: str | Path):
     """The dual-loss model in ``path`` (networks in eval mode); refuses other kinds and nets that
     do not read five images."""
-    from ..train.inference import load_model
+    from ..model.predict import load_model
 
     bundle = load_model(path, expect_kind="dualloss")
     n = bundle.dualloss.config.num_lights

@@ -3,8 +3,8 @@
 The networks were trained on whole captures at the model grid G (the flash highlight at the frame
 centre, the camera of DESIGN §3). An N×N working image (N > G) is estimated as one capture:
 
-1. **Lighting, once** (:func:`ebr_mitsuba.train.inference.predict_lighting`, at G): lighting net,
-   SG extraction, exemplar selection. Nothing of it is repeated per tile.
+1. **Lighting, once** (:meth:`~ebr_mitsuba.model.predictor.StagedPredictor.predict_lighting`, at
+   G): lighting net, SG extraction, exemplar selection. Nothing of it is repeated per tile.
 2. **A grid pass** of the cascade (the whole capture at G): the capture's flash scale ``k``
    (least squares of the flash-only image against the coarse maps' flash render, fitted once and
    given to every part; the refinement net's inputs depend on it).
@@ -68,6 +68,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..imageio import resize_area
+from ..model.predictor import Lighting, PassInputs, StagedPredictor
 from ..sgenv import SGEnvironment
 from ..svbrdf import SVBRDF
 from .tiling import DEFAULT_OVERLAP, ramp, tile_starts, upsample_bilinear
@@ -124,7 +125,8 @@ def env_exemplars_at(env: SGEnvironment | None, roughness, grid_images: np.ndarr
     the grid exemplars ``grid_images`` (K, G, G, 3) in their low frequencies (module docstring)."""
     import drjit as dr
 
-    from ..render import RenderOptions, exemplar_images
+    from ..exemplar.images import exemplar_images
+    from ..render import RenderOptions
 
     k, g = grid_images.shape[0], grid_images.shape[1]
     if env is None or env.num_lobes == 0:
@@ -143,14 +145,14 @@ def env_exemplars_at(env: SGEnvironment | None, roughness, grid_images: np.ndarr
 
 def point_exemplars_at(roughness, size: int) -> np.ndarray:
     """Point-light exemplars (K, N, N, 3) at ``size`` N (the exemplar material under the near
-    flash alone, exact; the same renders as :func:`ebr_mitsuba.extract.select.point_exemplar_images`
+    flash alone, exact; the same renders as :func:`ebr_mitsuba.exemplar.images.point_exemplar_images`
     without building the uniform maps in numpy)."""
     import drjit as dr
     import mitsuba as mi
 
+    from ..exemplar import EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR
     from ..geometry import near_shot
     from ..render import DrLobes, DrMaps, render
-    from ..render.fast import EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR
 
     count = size * size
     shot = near_shot(True, env=False)
@@ -168,12 +170,10 @@ def point_exemplars_at(roughness, size: int) -> np.ndarray:
     return out
 
 
-def full_pass_inputs(lighting, photos: dict[str, np.ndarray], num_photos: int, inf=None):
-    """The cascade's :class:`~ebr_mitsuba.train.inference.PassInputs` at the photos' size N
+def full_pass_inputs(lighting: Lighting, photos: dict[str, np.ndarray], num_photos: int) -> PassInputs:
+    """The cascade's :class:`~ebr_mitsuba.model.predictor.PassInputs` at the photos' size N
     (module docstring, step 3). ``photos``: shot name → (N, N, 3); ``num_photos``: 2 or 4 (the
-    cascade's P); ``inf``: the inference module (default :mod:`ebr_mitsuba.train.inference`)."""
-    if inf is None:
-        from ..train import inference as inf
+    cascade's P)."""
     flash = photos["flash"]
     n = flash.shape[0]
     if "noflash" in photos:
@@ -199,7 +199,7 @@ def full_pass_inputs(lighting, photos: dict[str, np.ndarray], num_photos: int, i
         else:
             far, far_fo = [np.zeros_like(flash)] * 2, np.zeros_like(flash)
         shots += far
-    return inf.PassInputs(nf, fo, env_images, point_images, shots, far_fo)
+    return PassInputs(nf, fo, env_images, point_images, shots, far_fo)
 
 
 def pass_bytes(cascade, pixels: int) -> float:
@@ -263,8 +263,9 @@ def ensemble_sizes(n: int, grid: int, count: int = ENSEMBLE) -> list[int]:
 
 @dataclass
 class FullResPrediction:
-    """What :func:`predict_maps` returns (the fields of ``inference.Prediction`` plus the grid
-    pass, the ensemble and the tiling). ``maps``: (N, N); ``grid_maps``: the grid pass (G, G);
+    """What :func:`predict_maps` returns (the fields of
+    :class:`~ebr_mitsuba.model.predictor.Prediction` plus the grid pass, the ensemble and the
+    tiling). ``maps``: (N, N); ``grid_maps``: the grid pass (G, G);
     ``members``: the sizes of the passes averaged; ``tiles``: the (row, column) origins of the
     tiles of the full-size pass (one ``(0, 0)`` for a single pass) and ``tile`` their side;
     ``scales``: the flash scales given to every part."""
@@ -411,9 +412,8 @@ def upsample_maps(maps: SVBRDF, size: int) -> SVBRDF:
 
 
 def predict_maps(
-    inf,
-    bundle,
-    lighting,
+    predictor: StagedPredictor,
+    lighting: Lighting,
     photos: dict[str, np.ndarray],
     grid_photos: dict[str, np.ndarray],
     *,
@@ -424,23 +424,23 @@ def predict_maps(
 ) -> FullResPrediction:
     """Maps at the photos' size N from the capture's ``lighting`` (module docstring).
 
-    ``inf``: the inference module (:mod:`ebr_mitsuba.train.inference`: ``grid_pass_inputs``,
-    ``cascade_pass``, ``PassInputs``); ``photos`` / ``grid_photos``: shot name → (N, N, 3) /
-    (G, G, 3), the same shots at the working size and at the grid; ``progress(done, total,
+    ``predictor``: the model (a :class:`~ebr_mitsuba.model.predictor.StagedPredictor`: its
+    ``cascade``, ``grid_pass_inputs`` and ``cascade_pass``); ``photos`` / ``grid_photos``: shot
+    name → (N, N, 3) / (G, G, 3), the same shots at the working size and at the grid; ``progress(done, total,
     what)``: after each step; ``pass_memory``: bytes a network pass may take before tiles are used
     (None: :data:`PASS_MEMORY`; a small value forces tiles); ``overlap``: tile overlap in pixels;
     ``ensemble``: how many pass sizes are averaged (None: :data:`ENSEMBLE`; 1: the full size alone).
     """
     import torch
 
+    from ..model.renders import flash_scale
     from ..render import RenderOptions
-    from ..train.renders import flash_scale
     from .fastnet import cascade_passes, fast_cascade
 
     timings: dict[str, float] = {}
     n = photos["flash"].shape[0]
     g = grid_photos["flash"].shape[0]
-    cascade = bundle.cascade
+    cascade = predictor.cascade
     c = cascade.config
     per_pass = cascade_passes(cascade)
     pass_memory = PASS_MEMORY if pass_memory is None else float(pass_memory)
@@ -459,15 +459,14 @@ def predict_maps(
     # ensemble when the working size is within 4× the grid).
     t0 = time.perf_counter()
     with torch_threads(1):  # module docstring, "Speed"
-        g_in = inf.grid_pass_inputs(
-            bundle,
+        g_in = predictor.grid_pass_inputs(
             lighting,
             grid_photos["flash"],
             grid_photos.get("noflash"),
             grid_photos.get("far_flash"),
             grid_photos.get("far_noflash"),
         )
-        g_out = inf.cascade_pass(bundle, g_in, lighting.env)  # the module: faster than FastNAFNet at the grid
+        g_out = predictor.cascade_pass(g_in, lighting.env)  # the module: faster than FastNAFNet at the grid
         step("grid pass")
         grid_maps = g_out.maps.to_svbrdf(0, source="ebr_mitsuba network (grid pass)")
         dev = g_out.maps.normal.device
@@ -493,7 +492,7 @@ def predict_maps(
         label = "full size" if size == n else f"{size}x{size}"
         t0 = time.perf_counter()
         sized = photos if size == n else {k: resize_area(v, (size, size)) for k, v in photos.items()}
-        full_in = full_pass_inputs(lighting, sized, c.num_photos, inf)
+        full_in = full_pass_inputs(lighting, sized, c.num_photos)
         release_memory()  # the renders' buffers go back to the system before the networks run
         timings["exemplars"] += time.perf_counter() - t0
         step(f"exemplars, {label}")
@@ -501,8 +500,7 @@ def predict_maps(
         what = label if len(starts) == 1 else f"{label}, tiles"
         view = fast_cascade(cascade, lambda what=what: step(what))
         if len(starts) == 1:
-            out = inf.cascade_pass(
-                bundle,
+            out = predictor.cascade_pass(
                 full_in,
                 lighting.env,
                 cascade=view,
@@ -517,8 +515,7 @@ def predict_maps(
             tiled = _MapSum(size)
             for i in starts:
                 for j in starts:
-                    out = inf.cascade_pass(
-                        bundle,
+                    out = predictor.cascade_pass(
                         full_in.crop(i, j, tile, tile),
                         lighting.env,
                         cascade=view,

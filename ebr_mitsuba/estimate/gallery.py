@@ -26,7 +26,8 @@ from pathlib import Path
 from ..errors import InputError
 from ..fsutil import atomic_dir, atomic_write_text
 from ..imageio import EXR_SUFFIXES, JPEG_SUFFIXES, PNG_SUFFIXES
-from .pipeline import EstimateConfig, inference_module, run_estimate
+from . import pipeline
+from .pipeline import EstimateConfig, run_estimate
 from .refine import RefineConfig
 
 STRIP = (
@@ -76,14 +77,17 @@ def build_gallery(
     checkpoint: str | None = None,
     refine_steps: int = 0,
     log: Callable[[str], None] | None = None,
+    predictor=None,
 ) -> dict:
     """Flash-only estimates of every photo in ``photos_dir`` → ``docs_dir/gallery.md`` + images.
-    Returns {"page", "photos": [{"name", "image", "rel_rmse", "seconds", "warnings"}]}."""
+    Returns {"page", "photos": [{"name", "image", "rel_rmse", "seconds", "warnings"}]}.
+    ``predictor``: the model (None: :func:`.pipeline.load_predictor` of ``checkpoint``)."""
     log = log or (lambda m: None)
     photos = find_photos(photos_dir)
     docs_dir = Path(docs_dir)
     entries = []
-    bundle = inference_module().load_model(checkpoint)  # once for all photos
+    if predictor is None:
+        predictor = pipeline.load_predictor(checkpoint)  # once for all photos
     with (
         tempfile.TemporaryDirectory(prefix="ebr-gallery-") as work,
         atomic_dir(docs_dir / "gallery") as img_dir,
@@ -99,7 +103,7 @@ def build_gallery(
                     checkpoint=checkpoint,
                     refine=RefineConfig(steps=refine_steps),
                 ),
-                bundle=bundle,
+                predictor=predictor,
             )
             image = f"gallery/{photo.stem}.png"
             strip(est, img_dir / f"{photo.stem}.png")

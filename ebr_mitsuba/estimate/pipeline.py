@@ -7,16 +7,23 @@ stage         work
 ============  ===================================================================================
 ``inputs``    read, exposure-match and check the shots (:func:`.inputs.load_inputs`); the
               working size (:func:`.resample.working_size`) and the shots resampled to it
-``model``     load the network (:func:`ebr_mitsuba.train.inference.load_model`)
+``model``     the model: the ``predictor`` given, else :func:`load_predictor` (the shipped model
+              or ``--checkpoint``, :func:`ebr_mitsuba.model.predict.load_predictor`)
 ``lighting``  once per capture, at the model grid: lighting net, SG extraction, exemplar
-              selection (:func:`ebr_mitsuba.train.inference.predict_lighting`)
+              selection (:meth:`~ebr_mitsuba.model.predictor.StagedPredictor.predict_lighting`)
 ``maps``      the cascade over the whole working image (:func:`.fullres.predict_maps`); at the
-              grid size, ``lighting`` and ``maps`` are one call (``predict``)
+              grid size, ``lighting`` and ``maps`` are one call
+              (:meth:`~ebr_mitsuba.model.predictor.Predictor.predict`)
 ``rerender``  flash intensity, re-render errors of the network's estimate
 ``refine``    ``--refine-steps N`` > 0: test-time refinement (:mod:`.refine`)
 ``outputs``   maps, env.json and pictures, re-renders, residuals, novel lights (:mod:`.outputs`)
 ``report``    ``report.html`` (:mod:`.report`)
 ============  ===================================================================================
+
+The model is an argument (a :class:`~ebr_mitsuba.model.predictor.Predictor`): an estimate at the
+model grid needs its ``grid``, ``takes_far`` and ``predict``; one above the grid a
+:class:`~ebr_mitsuba.model.predictor.StagedPredictor`. :func:`run_estimate` returns the summary
+(``estimate.json``) with the estimate itself in memory (:class:`EstimateResult`).
 
 Every stage that can take more than a second says so on stderr when it starts and shows a
 progress bar (``bar``); ``--json`` output goes to stdout alone.
@@ -43,7 +50,6 @@ as they are (the reference exposure assumed) and the intensity is fitted.
 
 from __future__ import annotations
 
-import importlib
 import json
 import math
 import time
@@ -54,9 +60,10 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from ..errors import InputError, RuntimeSetupError
+from ..errors import InputError
 from ..fsutil import atomic_dir
 from ..geometry import DEFAULT_FLASH_INTENSITY, FAR_DISTANCE, FAR_FOV, Shot
+from ..model.predictor import Prediction, Predictor
 from ..sgenv import SGEnvironment
 from ..svbrdf import SVBRDF
 from . import outputs
@@ -64,10 +71,9 @@ from .fullres import release_memory
 from .inputs import DEFAULT_FOV, DEFAULT_MAX_SHIFT, Inputs, load_inputs
 from .metrics import map_rmse
 from .refine import RefineConfig, ShotTarget, fit_flash_intensity, refine, rerender_errors
-from .resample import DEFAULT_MAX_SIZE, model_grid, working_size
+from .resample import DEFAULT_MAX_SIZE, working_size
 
 ESTIMATE_FORMAT = "ebr-estimate/1"
-INFERENCE_MODULE = "ebr_mitsuba.train.inference"
 
 
 @dataclass(frozen=True)
@@ -89,16 +95,24 @@ class EstimateConfig:
     max_size: int = DEFAULT_MAX_SIZE
 
 
-def inference_module():
-    """The network inference module (imported lazily: it pulls in torch)."""
-    try:
-        return importlib.import_module(INFERENCE_MODULE)
-    except ModuleNotFoundError as exc:
-        if exc.name and exc.name.startswith(INFERENCE_MODULE):
-            raise RuntimeSetupError(
-                f"this installation lacks {INFERENCE_MODULE} (the network inference); reinstall ebr-mitsuba"
-            ) from None
-        raise
+class EstimateResult(dict):
+    """What :func:`run_estimate` returns: the summary (the ``estimate.json`` document, a dict)
+    with the estimate in memory, in the photos' units as written: ``maps`` (the final maps, as
+    ``maps/``), ``network_maps`` (the network's, as ``maps_network/`` when refined; the same as
+    ``maps`` otherwise) and ``env`` (the final SG environment; None in flash-only mode)."""
+
+    def __init__(self, summary: dict, maps: SVBRDF, network_maps: SVBRDF, env: SGEnvironment | None):
+        super().__init__(summary)
+        self.maps, self.network_maps, self.env = maps, network_maps, env
+
+
+def load_predictor(checkpoint: str | None) -> Predictor:
+    """The model :func:`run_estimate` uses when it is given none (also ``ebr demo``'s and the
+    gallery's): ``checkpoint`` (None: the shipped model) as a
+    :class:`~ebr_mitsuba.model.predict.ModelPredictor`. Imported here: the model pulls in torch."""
+    from ..model.predict import load_predictor as load
+
+    return load(checkpoint)
 
 
 def check_out_dir(out: Path) -> None:
@@ -188,31 +202,20 @@ def _intensities(
     return result
 
 
-def _check_prediction(pred, size: int, flash_only: bool):
-    maps = getattr(pred, "maps", None)
-    if not isinstance(maps, SVBRDF):
-        raise RuntimeError(f"the network returned {type(maps).__name__} maps, not an SVBRDF")
-    if maps.shape != (size, size):
-        raise RuntimeError(f"the network returned {maps.shape} maps for a {size}x{size} image")
-    env = getattr(pred, "env", None)
+def _checked(pred: Prediction, size: int, flash_only: bool) -> tuple[SVBRDF, SGEnvironment | None]:
+    """The prediction's maps (checked to be ``size``²) and environment (None in flash-only mode;
+    no lobes when the model found none)."""
+    if pred.maps.shape != (size, size):
+        raise RuntimeError(f"the network returned {pred.maps.shape} maps for a {size}x{size} image")
     if flash_only:
-        return maps, None
-    if env is not None and not isinstance(env, SGEnvironment):
-        raise RuntimeError(f"the network returned a {type(env).__name__} environment, not an SGEnvironment")
-    return maps, env if env is not None else SGEnvironment.empty()
+        return pred.maps, None
+    return pred.maps, pred.env if pred.env is not None else SGEnvironment.empty()
 
 
-def model_takes_far(bundle) -> bool:
-    """Whether the model's lighting net reads the far pair (a near-far model)."""
-    lighting = getattr(bundle, "lighting", None)
-    config = getattr(lighting, "config", None)
-    return getattr(config, "num_shots", 4) == 4
-
-
-def _shot_args(bundle, images: dict[str, np.ndarray]) -> tuple:
+def _shot_args(predictor: Predictor, images: dict[str, np.ndarray]) -> tuple:
     """(flash, no-flash, far flash, far no-flash) for the model (a near model gets no far pair:
     the far shots then serve the re-renders and the refinement only)."""
-    far = (images.get("far_flash"), images.get("far_noflash")) if model_takes_far(bundle) else (None, None)
+    far = (images.get("far_flash"), images.get("far_noflash")) if predictor.takes_far else (None, None)
     return images["flash"], images.get("noflash"), *far
 
 
@@ -326,14 +329,16 @@ def run_estimate(
     truth: SVBRDF | None = None,
     log: Callable[[str], None] | None = None,
     bar: Callable | None = None,
-    bundle=None,
-) -> dict:
-    """Run the estimate described by ``cfg``; return the summary (also ``estimate.json``).
+    predictor: Predictor | None = None,
+) -> EstimateResult:
+    """Run the estimate described by ``cfg``; return the summary (also ``estimate.json``) with the
+    maps and lighting in memory (:class:`EstimateResult`).
 
     ``truth``: ground-truth maps (``ebr demo``) to compare against, per map. ``log(msg)``: stage
     messages (stderr in the command); ``bar``: a tqdm-like factory for the refinement progress.
-    ``bundle``: the model already loaded from ``cfg.checkpoint`` (callers that estimate several
-    captures load it once); None loads it here.
+    ``predictor``: the model (a :class:`~ebr_mitsuba.model.predictor.Predictor`, a
+    :class:`~ebr_mitsuba.model.predictor.StagedPredictor` above the grid; callers that estimate
+    several captures load it once); None: :func:`load_predictor` of ``cfg.checkpoint``.
     """
     log = log or (lambda msg: None)
     timings: dict[str, float] = {}
@@ -372,15 +377,14 @@ def run_estimate(
         log(f"warning: {w}")
 
     t0 = time.perf_counter()
-    with _Steps(bar if bundle is None else None, "model", delay=0.5) as steps:
+    with _Steps(bar if predictor is None else None, "model", delay=0.5) as steps:
         steps(0, 2, "import")
-        inf = inference_module()
-        if bundle is None:
+        if predictor is None:
             steps(1, 2, "load")
-            bundle = inf.load_model(cfg.checkpoint)
+            predictor = load_predictor(cfg.checkpoint)
         steps(2, 2, "done")
-    grid = model_grid(bundle)
-    if inputs.has_far and not model_takes_far(bundle):
+    grid = int(predictor.grid)
+    if inputs.has_far and not predictor.takes_far:
         inputs.warnings.append(
             "the model reads near captures only: the far shots are used for the re-renders and the "
             "refinement, not for the prediction"
@@ -408,8 +412,8 @@ def run_estimate(
             steps(0, 1, f"{grid}x{grid}")
             work_inputs = inputs.resampled((work, work))
             grid_inputs = work_inputs
-            pred = inf.predict(bundle, *_shot_args(bundle, grid_inputs.images))
-        maps, env = _check_prediction(pred, grid, inputs.flash_only)
+            pred = predictor.predict(*_shot_args(predictor, grid_inputs.images))
+        maps, env = _checked(pred, grid, inputs.flash_only)
         stage("maps", t0)
     else:
         from .fullres import predict_maps
@@ -424,15 +428,15 @@ def run_estimate(
             steps(0, 3, "resampling the photos")
             work_inputs = inputs.resampled((work, work))
             grid_inputs = work_inputs.resampled((grid, grid))
-            lighting = inf.predict_lighting(bundle, *_shot_args(bundle, grid_inputs.images), progress=steps)
-        lighting_timings = dict(getattr(lighting, "timings", None) or {})
+            lighting = predictor.predict_lighting(*_shot_args(predictor, grid_inputs.images), progress=steps)
+        lighting_timings = dict(lighting.timings)
         stage("lighting", t0)
         t0 = time.perf_counter()
         log(f"estimating the maps at {work}x{work}")
         with _Steps(bar, "maps") as steps:
-            pred = predict_maps(inf, bundle, lighting, work_inputs.images, grid_inputs.images, progress=steps)
+            pred = predict_maps(predictor, lighting, work_inputs.images, grid_inputs.images, progress=steps)
         release_memory()
-        maps, env = _check_prediction(pred, work, inputs.flash_only)
+        maps, env = _checked(pred, work, inputs.flash_only)
         tiles, tile, ensemble = len(pred.tiles), pred.tile, list(pred.members)
         stage("maps", t0)
 
@@ -525,7 +529,7 @@ def run_estimate(
         },
         "prediction_timings": {
             k: float(v)
-            for k, v in {**lighting_timings, **(getattr(pred, "timings", None) or {})}.items()
+            for k, v in {**lighting_timings, **pred.timings}.items()
             if isinstance(v, (int, float))
         },
         "warnings": list(inputs.warnings),
@@ -568,15 +572,16 @@ def run_estimate(
         files += run_jobs(jobs, local, workers, steps)
         stage("outputs", t0)
         outputs.write_report_and_summary(tmp, summary, files, t_start, stage)
-    return summary
+    return EstimateResult(summary, final_maps, maps, final_env)
 
 
 __all__ = [
     "ESTIMATE_FORMAT",
     "EstimateConfig",
+    "EstimateResult",
     "run_estimate",
     "check_out_dir",
     "near_distance",
     "capture_intensities",
-    "inference_module",
+    "load_predictor",
 ]

@@ -10,9 +10,9 @@ followed by two fixed anchors (low and high roughness, so the networks always se
 the blurriest view of the lighting):
 
 * environment exemplars (``point_light=False``): renders under the extracted SG environment,
-  flash off (:func:`ebr_mitsuba.render.exemplar_images`), against the **no-flash** photo;
+  flash off (:func:`.images.env_exemplar_images`), against the **no-flash** photo;
 * point-light exemplars (``point_light=True``): renders lit by the near flash alone
-  (:func:`point_exemplar_images`), against the **flash-only** image (flash − no-flash).
+  (:func:`.images.point_exemplar_images`), against the **flash-only** image (flash − no-flash).
 
 **Score.** The photographed material is not the exemplar material: its albedo, specular level and
 colour differ, so its image differs from every exemplar by a brightness and a diffuse-to-specular
@@ -61,7 +61,6 @@ Shapes: ``target`` (H, W, 3) linear float, H, W ≥ 4; ``Selection.images`` (3, 
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -69,13 +68,16 @@ import numpy as np
 
 from ..colour import LUMINANCE
 from ..errors import InputError
-from ..exemplar import EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR
 from ..floors import ROUGHNESS_MIN
-from ..geometry import Shot, near_shot
+from ..geometry import Shot
 from ..sgenv import SGEnvironment
 from ..typedconfig import config, option
+from . import EXEMPLAR_SPECULAR
+from .images import env_exemplar_images, env_shot, flash_shot, point_exemplar_images, uniform_renders
 
 MIN_SIZE = 4
+
+
 @config
 class SelectConfig:
     """Knobs of :func:`select_exemplars`. :data:`SELECT_PRESETS` names ``default`` (``ebr
@@ -125,6 +127,7 @@ SELECT_PRESETS = {
     "training": SelectConfig(env_mode="sg", compare_size=16),
 }
 
+
 @dataclass(frozen=True)
 class Selection:
     """The selected exemplars: ``roughness`` = (adaptive choice, low anchor, high anchor),
@@ -144,104 +147,6 @@ class Selection:
             "roughness": [float(r) for r in self.roughness],
             "scores": {f"{r:g}": float(s) for r, s in sorted(self.scores.items())},
         }
-
-
-# -- rendering -------------------------------------------------------------------------------------
-
-
-def _require_variant() -> None:
-    import mitsuba as mi
-
-    if mi.variant() is None:
-        from ..variant import ensure_variant
-
-        ensure_variant()
-
-
-def _flash_shot(shot: Shot | None) -> Shot:
-    shot = shot or near_shot(True, env=False)
-    if shot.flash is None:
-        raise InputError(f"point-light exemplars need a shot with a flash; shot {shot.name!r} has none")
-    return dataclasses.replace(shot, env=False)
-
-
-def _env_shot(shot: Shot | None) -> Shot:
-    return dataclasses.replace(shot or near_shot(False), flash=None, env=True)
-
-
-def _check_roughness(roughness_list: Sequence[float], what: str) -> np.ndarray:
-    r = np.asarray(roughness_list, dtype=np.float64).reshape(-1)
-    if r.size == 0 or not np.all(np.isfinite(r)) or r.min() < 0 or r.max() > 1:
-        raise InputError(f"{what}: roughness values {r.tolist()} must be a non-empty list in [0, 1]")
-    return r
-
-
-def _uniform_renders(
-    materials: Sequence[tuple[float, float, float]],
-    env: SGEnvironment | None,
-    shot: Shot,
-    height: int,
-    width: int,
-    mode: str,
-    spp: int,
-) -> np.ndarray:
-    """Renders (K, H, W, 3) float32 of uniform flat materials (diffuse, specular, roughness) with
-    the fast renderer; one kernel serves every material (the maps are data, not constants)."""
-    import drjit as dr
-
-    from ..render import DrLobes, DrMaps, RenderOptions, render
-
-    _require_variant()
-    lobes = DrLobes.from_env(env if env is not None else SGEnvironment.empty())
-    options = RenderOptions(mode=mode, spp=int(spp))
-    out = np.empty((len(materials), height, width, 3), np.float32)
-    with dr.suspend_grad():
-        for k, (d, s, r) in enumerate(materials):
-            maps = DrMaps.uniform(height, width, diffuse=d, specular=s, roughness=r)
-            out[k] = np.asarray(render(maps, lobes, shot, options).numpy(), np.float32)
-    return out
-
-
-def point_exemplar_images(
-    roughness_list: Sequence[float], height: int, width: int, shot: Shot | None = None
-) -> np.ndarray:
-    """Point-light exemplars (K, H, W, 3) float32: the exemplar material (diffuse 0.1, specular
-    0.2, roughness r, flat normal) lit by ``shot``'s flash alone (default: the near flash shot),
-    no environment; exact (the flash term has no sampling)."""
-    r = _check_roughness(roughness_list, "point_exemplar_images")
-    return _uniform_renders(
-        [(EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR, float(v)) for v in r],
-        None,
-        _flash_shot(shot),
-        int(height),
-        int(width),
-        "sg",
-        1,
-    )
-
-
-def env_exemplar_images(
-    env: SGEnvironment,
-    roughness_list: Sequence[float],
-    height: int,
-    width: int,
-    shot: Shot | None = None,
-    mode: str = "quadrature",
-    spp: int = 64,
-) -> np.ndarray:
-    """Environment exemplars (K, H, W, 3) float32 (:func:`ebr_mitsuba.render.exemplar_images`, flash
-    off) as one numpy stack."""
-    import drjit as dr
-
-    from ..render import exemplar_images
-
-    _require_variant()
-    r = _check_roughness(roughness_list, "env_exemplar_images")
-    with dr.suspend_grad():
-        images = exemplar_images(
-            env, r.tolist(), int(height), int(width), shot=_env_shot(shot), mode=mode, spp=int(spp)
-        )
-    return np.stack([np.asarray(im.numpy(), np.float32) for im in images])
 
 
 # -- score -----------------------------------------------------------------------------------------
@@ -348,14 +253,14 @@ def select_exemplars(
     config = config or SelectConfig()
     target = _check_target(target)
     if point_light:
-        light_env, render_shot, mode, spp = None, _flash_shot(shot), "sg", 1
+        light_env, render_shot, mode, spp = None, flash_shot(shot), "sg", 1
     else:
         if not isinstance(env, SGEnvironment):
             raise InputError(
                 "select_exemplars: environment exemplars need the SG environment (env=...); "
                 "pass point_light=True to select point-light exemplars"
             )
-        light_env, render_shot, mode, spp = env, _env_shot(shot), config.env_mode, config.env_spp
+        light_env, render_shot, mode, spp = env, env_shot(shot), config.env_mode, config.env_spp
     h, w = target.shape[:2]
     ch, cw = _working_size(h, w, int(config.compare_size))
     rh, rw = ch * int(config.supersample), cw * int(config.supersample)
@@ -364,7 +269,7 @@ def select_exemplars(
         return _luminance(image if image.shape[:2] == (ch, cw) else resize_area(image, (ch, cw)))
 
     def renders(materials) -> list[np.ndarray]:
-        images = _uniform_renders(materials, light_env, render_shot, rh, rw, mode, spp)
+        images = uniform_renders(materials, light_env, render_shot, rh, rw, mode, spp)
         return [compare_lum(im) for im in images]
 
     t_lum = compare_lum(target)
@@ -396,9 +301,7 @@ __all__ = [
     "SELECT_PRESETS",
     "Selection",
     "SelectConfig",
-    "env_exemplar_images",
     "global_ssim",
-    "point_exemplar_images",
     "select_exemplars",
     "structural_score",
 ]

@@ -24,10 +24,10 @@ renderer's exemplar render at chosen pixels). Importing this package needs no Mi
 the functions select one when called.
 """
 
+from ..exemplar.files import read_exemplars, write_exemplars
 from .baseline import fibonacci_nnls
 from .config import ExtractConfig
 from .evaluate import lighting_errors
-from .exemplar_io import read_exemplars, write_exemplars
 from .msssim import ms_ssim, ms_ssim_error, ssim
 from .pipeline import ExtractResult, extract_sg
 

@@ -51,7 +51,8 @@ def quadrature_mean(
     """Low-noise fast renders: the exemplars (N, H, W, 3) for ``roughness``, or the test
     material (H, W, 3) when ``roughness`` is None; the mean of ``seeds`` quadrature patterns of
     ``spp`` directions (seeds ``seed0 …``)."""
-    from ..render import RenderOptions, exemplar_images, render_numpy
+    from ..exemplar.images import exemplar_images
+    from ..render import RenderOptions, render_numpy
 
     shot = shot or near_shot(False)
     acc = None

@@ -1,6 +1,6 @@
 """The forward model of SG extraction: the fast renderer's exemplars, at chosen pixels.
 
-:func:`ebr_mitsuba.render.exemplar_images` renders every pixel of every exemplar. Extraction
+:func:`ebr_mitsuba.exemplar.images.exemplar_images` renders every pixel of every exemplar. Extraction
 iterates on a random subset of the full-resolution pixels instead (``g²`` per exemplar per
 iteration), so this module builds the *same* shading points as ``exemplar_images`` (uniform
 exemplar material, flat normal, view vector ``normalize(camera − p)`` from

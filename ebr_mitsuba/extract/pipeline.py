@@ -412,7 +412,7 @@ def extract_sg(
 
     ``exemplars``: (N, H, W, 3) float linear radiance (or a list of N (H, W, 3) images of one
     size); ``roughness``: the N exemplar roughness values; ``shot``: the camera the exemplars were
-    rendered from (default: the near shot, as :func:`ebr_mitsuba.render.exemplar_images`).
+    rendered from (default: the near shot, as :func:`ebr_mitsuba.exemplar.images.exemplar_images`).
     Never returns NaN/Inf or negative lobes; an all-black stack gives an empty environment.
     """
     t0 = time.perf_counter()

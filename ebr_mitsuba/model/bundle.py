@@ -1,6 +1,6 @@
 """A trained model in memory: its networks, its configs and the facts of its training data.
 
-:class:`ModelBundle` is what :func:`ebr_mitsuba.train.inference.load_model` returns and what the
+:class:`ModelBundle` is what :func:`ebr_mitsuba.model.predict.load_model` returns and what the
 trainer builds. ``facts`` (:class:`DataFacts`) records what the networks assume about their
 inputs: the grid resolution, the roughness values of the lighting net's exemplars, the nominal
 flash intensity and the capture setup.
@@ -15,7 +15,7 @@ import torch
 
 from ..data import store
 from ..errors import ConfigError, InputError
-from .config import TrainConfig, config_from_dict
+from ..train.config import TrainConfig, config_from_dict
 
 
 @dataclass(frozen=True)
@@ -123,7 +123,7 @@ class ModelBundle:
 
 def net_configs(bundle: ModelBundle) -> dict:
     """The network configs as plain data (for the checkpoint)."""
-    from .config import _plain
+    from ..train.config import _plain
 
     return {name: _plain(net.config) for name, net in bundle.nets().items()}
 

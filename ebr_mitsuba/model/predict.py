@@ -1,7 +1,9 @@
-"""Running a trained model: photos in, maps + SG lighting out (DESIGN §1, the whole pipeline).
+"""Running a trained model: photos in, maps + SG lighting out (``docs/conventions.md``, "Pipeline").
 
-:func:`load_model` reads a checkpoint (None: the model shipped in :mod:`ebr_mitsuba.models`);
-:func:`predict` runs, on numpy (H, W, 3) linear float32 images at the model grid
+:func:`load_model` reads a checkpoint (None: the model shipped in :mod:`ebr_mitsuba.models`) as a
+:class:`~.bundle.ModelBundle`; :func:`load_predictor` wraps it as a :class:`ModelPredictor`, the
+:class:`~.predictor.Predictor` that ``ebr estimate``, ``ebr eval``, the benches and the trainer's
+cache take. :func:`predict` runs, on numpy (H, W, 3) linear float32 images at the model grid
 (``bundle.resolution``):
 
 ==============  ==========================================================================
@@ -9,7 +11,7 @@ stage           work (``Prediction.timings`` key)
 ==============  ==========================================================================
 ``lighting``    lighting net: (flash, no-flash[, far pair]) → N env exemplars + flash-only
 ``extract``     :func:`ebr_mitsuba.extract.extract_sg` on the exemplars → SG environment
-``select``      :func:`ebr_mitsuba.extract.select.select_exemplars`: env exemplars against
+``select``      :func:`ebr_mitsuba.exemplar.select.select_exemplars`: env exemplars against
                 the no-flash photo, point-light exemplars against the flash-only image
 ``cascade``     diffuse → specular → refinement nets (:func:`.renders.cascade_forward`)
 ==============  ==========================================================================
@@ -30,7 +32,6 @@ Extraction and selection use the settings the model was trained with (its config
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
@@ -39,9 +40,10 @@ import torch
 
 from ..errors import InputError
 from ..sgenv import SGEnvironment
-from ..svbrdf import SVBRDF
 from .bundle import ModelBundle, bundle_from_checkpoint
 from .checkpoint import load_checkpoint
+from .device import pick_device
+from .predictor import Lighting, PassInputs, Prediction
 
 SHIPPED_MODEL = "ebrenv_small.pt"
 FALLBACK_ROUGHNESS = 0.5
@@ -50,15 +52,6 @@ FALLBACK_ROUGHNESS = 0.5
 def shipped_model_path() -> Path:
     """Path of the model shipped in the package (:mod:`ebr_mitsuba.models`)."""
     return Path(str(resources.files("ebr_mitsuba.models").joinpath(SHIPPED_MODEL)))
-
-
-def pick_device(name: str = "auto") -> torch.device:
-    """``auto``: CUDA when present, else CPU."""
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name == "cuda" and not torch.cuda.is_available():
-        raise InputError("device 'cuda' requested but torch sees no CUDA device; use 'auto' or 'cpu'")
-    return torch.device(name)
 
 
 def load_model(
@@ -78,23 +71,9 @@ def load_model(
     return bundle_from_checkpoint(data, str(path), pick_device(device)).train(False)
 
 
-@dataclass
-class Prediction:
-    """What :func:`predict` returns.
-
-    ``maps``: SVBRDF at the model grid; ``env``: extracted SG environment in the photos' units
-    (None in flash-only mode); ``env_exemplars``: the lighting net's N exemplars, (H, W, 3) each,
-    in the order of ``bundle.facts.env_roughness`` (empty in flash-only mode); ``flash_only``:
-    (H, W, 3) the flash-only image the cascade used; ``selection``: ``{"env": Selection | None,
-    "point": Selection}``; ``timings``: seconds per stage.
-    """
-
-    maps: SVBRDF
-    env: SGEnvironment | None
-    env_exemplars: list[np.ndarray] = field(default_factory=list)
-    flash_only: np.ndarray | None = None
-    selection: dict = field(default_factory=dict)
-    timings: dict = field(default_factory=dict)
+def takes_far(bundle: ModelBundle) -> bool:
+    """Whether the model's lighting net reads the far pair (four shots: a near-far model)."""
+    return bundle.lighting is not None and bundle.lighting.config.num_shots == 4
 
 
 def _image(name: str, image, size: int) -> np.ndarray:
@@ -142,7 +121,8 @@ def select_pair(
     Selection)``. ``fixed_roughness``: skip the search and use (r, low anchor, high anchor) — the
     "without adaptive selection" ablation; also used when a target is black or uniform (a saturated
     photo), with :data:`FALLBACK_ROUGHNESS`."""
-    from ..extract.select import Selection, env_exemplar_images, point_exemplar_images, select_exemplars
+    from ..exemplar.images import env_exemplar_images, point_exemplar_images
+    from ..exemplar.select import Selection, select_exemplars
 
     env = env if env is not None else SGEnvironment.empty()
     h, w = flash_only.shape[:2]
@@ -184,7 +164,7 @@ def estimate_lighting(
 
     timings = {}
     t0 = time.perf_counter()
-    shots = [flash, noflash] + ([far_flash, far_noflash] if bundle.lighting.config.num_shots == 4 else [])
+    shots = [flash, noflash] + ([far_flash, far_noflash] if takes_far(bundle) else [])
     x = torch.cat([_chw(s, bundle.device) for s in shots], dim=1)
     out = bundle.lighting(x)
     exemplars, flash_only = _hwc(out.exemplars[0]), _hwc(out.flash_only[0])
@@ -199,64 +179,6 @@ def estimate_lighting(
     return exemplars, flash_only, result.env, timings
 
 
-@dataclass
-class Lighting:
-    """The capture's lighting, estimated once at the model grid G (:func:`predict_lighting`):
-    what every part of a full-resolution estimate shares.
-
-    ``env``: the extracted SGs in photo units (None in flash-only mode); ``env_exemplars``: the
-    lighting net's N exemplars (G, G, 3) (empty in flash-only mode); ``flash_only`` (G, G, 3):
-    the lighting net's flash-only image (the flash photo in flash-only mode);
-    ``far_flash_only`` (G, G, 3) or None: the far pair's ``max(far flash − far no-flash, 0)`` (a
-    near-far model); ``selection``: ``{"env": Selection | None, "point": Selection}`` with the
-    selected exemplars at the grid in the model's training render mode; ``timings``: seconds per
-    stage (``lighting``, ``extract``, ``select``).
-    """
-
-    grid: int
-    env: SGEnvironment | None
-    env_exemplars: list[np.ndarray]
-    flash_only: np.ndarray
-    far_flash_only: np.ndarray | None
-    selection: dict
-    timings: dict = field(default_factory=dict)
-
-
-@dataclass
-class PassInputs:
-    """The cascade's inputs for one pass over an (H, W) image (numpy, linear float32):
-    ``noflash``, ``flash_only`` (H, W, 3); ``env_exemplars``, ``point_exemplars`` (K, H, W, 3);
-    ``photos``: (flash, no-flash[, far flash, far no-flash]) each (H, W, 3); ``far_flash_only``
-    (H, W, 3) or None."""
-
-    noflash: np.ndarray
-    flash_only: np.ndarray
-    env_exemplars: np.ndarray
-    point_exemplars: np.ndarray
-    photos: list[np.ndarray]
-    far_flash_only: np.ndarray | None = None
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        return int(self.noflash.shape[0]), int(self.noflash.shape[1])
-
-    def crop(self, row: int, col: int, height: int, width: int) -> PassInputs:
-        """The block of rows ``row … row+height−1`` and columns ``col … col+width−1``."""
-        sl = (slice(row, row + height), slice(col, col + width))
-
-        def cut(a):
-            return None if a is None else np.ascontiguousarray(a[..., sl[0], sl[1], :])
-
-        return PassInputs(
-            cut(self.noflash),
-            cut(self.flash_only),
-            cut(self.env_exemplars),
-            cut(self.point_exemplars),
-            [cut(p) for p in self.photos],
-            cut(self.far_flash_only),
-        )
-
-
 def _check_shots(bundle: ModelBundle, flash, noflash, far_flash, far_noflash, size: int | None):
     """Validated (flash, no-flash, [far pair]) at ``size`` (None: any square size)."""
     if bundle.kind != "ebrenv":
@@ -265,7 +187,7 @@ def _check_shots(bundle: ModelBundle, flash, noflash, far_flash, far_noflash, si
         )
     n = size if size is not None else int(np.asarray(flash).shape[0])
     flash = _image("flash", flash, n)
-    near_far = bundle.lighting.config.num_shots == 4
+    near_far = takes_far(bundle)
     has_far = far_flash is not None or far_noflash is not None
     if has_far and not near_far:
         raise InputError(
@@ -415,18 +337,63 @@ def predict(
     )
 
 
+class ModelPredictor:
+    """A loaded ``ebrenv`` model as a :class:`~.predictor.Predictor` and
+    :class:`~.predictor.StagedPredictor`: this module's functions bound to ``bundle``.
+
+    ``grid``: ``bundle.resolution``; ``takes_far``: the lighting net reads four shots. ``predict``
+    and ``predict_lighting`` also take ``extract_config`` and ``fixed_roughness`` (as the module's
+    functions)."""
+
+    def __init__(self, bundle: ModelBundle):
+        self.bundle = bundle
+
+    @property
+    def grid(self) -> int:
+        return int(self.bundle.resolution)
+
+    @property
+    def takes_far(self) -> bool:
+        return takes_far(self.bundle)
+
+    @property
+    def cascade(self):
+        return self.bundle.cascade
+
+    def predict(self, flash, noflash, far_flash=None, far_noflash=None, **options) -> Prediction:
+        return predict(self.bundle, flash, noflash, far_flash, far_noflash, **options)
+
+    def estimate_lighting(self, flash, noflash, far_flash=None, far_noflash=None, **options):
+        return estimate_lighting(self.bundle, flash, noflash, far_flash, far_noflash, **options)
+
+    def predict_lighting(self, flash, noflash, far_flash=None, far_noflash=None, **options) -> Lighting:
+        return predict_lighting(self.bundle, flash, noflash, far_flash, far_noflash, **options)
+
+    def grid_pass_inputs(
+        self, lighting: Lighting, flash, noflash, far_flash=None, far_noflash=None
+    ) -> PassInputs:
+        return grid_pass_inputs(self.bundle, lighting, flash, noflash, far_flash, far_noflash)
+
+    def cascade_pass(self, inputs: PassInputs, env: SGEnvironment | None, **options):
+        return cascade_pass(self.bundle, inputs, env, **options)
+
+
+def load_predictor(path: str | Path | None = None, device: str = "auto") -> ModelPredictor:
+    """:func:`load_model` (an ``ebrenv`` model; None: the shipped one) as a :class:`ModelPredictor`."""
+    return ModelPredictor(load_model(path, device))
+
+
 __all__ = [
-    "Lighting",
-    "PassInputs",
-    "Prediction",
+    "ModelPredictor",
     "cascade_pass",
     "grid_pass_inputs",
     "predict_lighting",
     "SHIPPED_MODEL",
     "estimate_lighting",
     "load_model",
-    "pick_device",
+    "load_predictor",
     "predict",
     "select_pair",
     "shipped_model_path",
+    "takes_far",
 ]

@@ -82,7 +82,7 @@ def flash_scale(maps: Maps, flash_only: torch.Tensor, far: bool = False) -> torc
 
 def far_flash_only(far_flash: torch.Tensor, far_noflash: torch.Tensor) -> torch.Tensor:
     """The far flash-only image of a near-far capture from its photos (any matching shapes):
-    ``max(max(far flash, 0) − max(far no-flash, 0), 0)``, as :func:`.inference.predict` forms it."""
+    ``max(max(far flash, 0) − max(far no-flash, 0), 0)``, as :func:`.predict.predict` forms it."""
     return (far_flash.clamp_min(0.0) - far_noflash.clamp_min(0.0)).clamp_min(0.0)
 
 

@@ -2,5 +2,5 @@
 
 ``ebrenv_small.pt``: the EBREnv lighting net + cascade of ``configs/train_small.toml`` (NAFNet
 ``small`` size, 64² grid, float16 weights), loaded by
-:func:`ebr_mitsuba.train.inference.load_model` when no checkpoint is given.
+:func:`ebr_mitsuba.model.predict.load_model` when no checkpoint is given.
 """

@@ -33,14 +33,13 @@ import numpy as np
 
 from ..brdf import brdf_eval_cos
 from ..errors import InputError
-from ..exemplar import EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR
-from ..geometry import DEFAULT_FLASH_INTENSITY, NEAR_FOV, Shot, near_shot
+from ..geometry import DEFAULT_FLASH_INTENSITY, NEAR_FOV, Shot
 from ..sgenv import SGEnvironment
 from ..svbrdf import SVBRDF
 from .env_quadrature import quadrature_environment
 from .env_sg import sg_environment
 from .inputs import DrLobes, DrMaps, RenderOptions
-from .points import ShadingPoints, grid_positions, opaque_point, points_from_maps, view_vectors
+from .points import ShadingPoints, opaque_point, points_from_maps
 
 
 def _require_variant() -> None:
@@ -65,7 +64,7 @@ def view_shot(
     )
 
 
-def _check_shot(shot: Shot) -> None:
+def check_shot(shot: Shot) -> None:
     if not isinstance(shot, Shot):
         raise InputError(f"render: shot must be an ebr_mitsuba.geometry.Shot (got {type(shot).__name__})")
     if not float(shot.camera[2]) > 0.0:
@@ -133,7 +132,7 @@ def render(
     """
     _require_variant()
     options = options or RenderOptions()
-    _check_shot(shot)
+    check_shot(shot)
     if not isinstance(maps, DrMaps) or not isinstance(lobes, DrLobes):
         raise InputError(
             "render: give the maps as DrMaps and the lobes as DrLobes "
@@ -174,7 +173,7 @@ def render_shots(
     if not isinstance(maps, DrMaps) or not isinstance(lobes, DrLobes):
         raise InputError("render_shots: give the maps as DrMaps and the lobes as DrLobes")
     for shot in shots:
-        _check_shot(shot)
+        check_shot(shot)
     h, w = maps.shape
     per_camera: dict[tuple, tuple] = {}
     out = []
@@ -219,59 +218,3 @@ def render_numpy(
     with dr.suspend_grad():
         image = render(DrMaps.from_numpy(svbrdf), lobes, shot, opts)
     return np.asarray(image.numpy(), dtype=np.float32)
-
-
-def exemplar_images(
-    env_lobes: DrLobes | SGEnvironment,
-    roughness_list: Sequence[float],
-    height: int,
-    width: int,
-    shot: Shot | None = None,
-    mode: str = "sg",
-    spp: int = 64,
-    options: RenderOptions | None = None,
-) -> list[mi.TensorXf]:
-    """Environment exemplars (``docs/conventions.md``, "Exemplars"): renders of the exemplar
-    material (:mod:`ebr_mitsuba.exemplar`: diffuse 0.1, specular 0.2 grey, roughness r, flat
-    normal) under the lobes, flash off, one (H, W, 3) ``mi.TensorXf`` per roughness,
-    differentiable w.r.t. the lobes.
-
-    All exemplars run as one kernel over (exemplar, lobe, pixel) pairs; the flat normal makes the
-    diffuse part one irradiance per lobe. ``shot`` gives the camera (default: the near shot);
-    its flash is ignored. ``options`` overrides ``mode``/``spp`` when given.
-    """
-    _require_variant()
-    if isinstance(env_lobes, SGEnvironment):
-        env_lobes = DrLobes.from_env(env_lobes)
-    roughness = np.asarray(roughness_list, dtype=np.float32).reshape(-1)
-    in_range = roughness.size > 0 and np.all(np.isfinite(roughness)) and roughness.min() >= 0
-    if not (in_range and roughness.max() <= 1):
-        raise InputError(
-            f"exemplar_images: roughness values {roughness.tolist()} must be a non-empty list in [0, 1]"
-        )
-    options = options or RenderOptions(mode=mode, spp=spp)
-    shot = shot or near_shot(False)
-    _check_shot(shot)
-    n_img = int(roughness.size)
-    pixels = height * width
-    if env_lobes.num_lobes == 0:
-        return [dr.zeros(mi.TensorXf, (height, width, 3)) for _ in range(n_img)]
-    positions, pixel = grid_positions(height, width)
-    v = view_vectors(positions, opaque_point(shot.camera))
-    idx = dr.arange(mi.UInt32, n_img * pixels)
-    img = idx // pixels
-    q = idx - img * pixels
-    count = n_img * pixels
-    points = ShadingPoints(
-        n=mi.Vector3f(0.0, 0.0, 1.0) + dr.zeros(mi.Vector3f, count),
-        v=dr.gather(mi.Vector3f, v, q),
-        diffuse=mi.Color3f(EXEMPLAR_DIFFUSE) + dr.zeros(mi.Color3f, count),
-        specular=mi.Color3f(EXEMPLAR_SPECULAR) + dr.zeros(mi.Color3f, count),
-        roughness=dr.gather(mi.Float, mi.Float(roughness), img),
-        pixel=dr.gather(mi.UInt32, pixel, q),
-        count=count,
-        flat_normal=True,
-    )
-    radiance = environment(points, env_lobes, options) * dr.opaque(mi.Float, float(options.env_scale))
-    stack = mi.TensorXf(dr.ravel(radiance), (n_img, height, width, 3))
-    return [stack[i] for i in range(n_img)]

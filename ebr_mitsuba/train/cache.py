@@ -6,10 +6,10 @@
 * **stage 2** (``cache/stage2/NNNNNN.npz``): the trained lighting net's flash-only image, the SGs
   :func:`ebr_mitsuba.extract.extract_sg` extracts from its exemplars, and the selection under them.
 
-Both follow :func:`ebr_mitsuba.train.inference.predict`: the lighting net takes the model's shots
+Both follow :func:`ebr_mitsuba.model.predict.predict`: the lighting net takes the model's shots
 (four for a near-far model, :data:`.data.CAPTURE_SHOTS`); the selections compare with the near
 no-flash photo and the near flash-only image. (The far flash-only image is not cached: it is a
-function of the photos, :func:`.renders.far_flash_only`.)
+function of the photos, :func:`ebr_mitsuba.model.renders.far_flash_only`.)
 
 Arrays are float32, images (K, H, W, 3) as selection returns them; lobes (K, 7). A cache file
 is written atomically and reused when present (``ebr train --resume``); under DDP each rank fills
@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from ..fsutil import atomic_path
+from ..model.predictor import StagedPredictor
 from . import ddp
 
 
@@ -51,8 +52,8 @@ def _selection_arrays(env_sel, point_sel, size: int) -> dict:
 
 def fill_stage1(root: Path, data, indices, select_config, progress=None) -> None:
     """Stage-1 selections for ``indices`` (skipping cached ones)."""
+    from ..model.predict import select_pair
     from ..sgenv import SGEnvironment
-    from .inference import select_pair
 
     todo = [i for i in indices if not cache_file(root, "stage1", i).is_file()]
     nf_i = data.shot("noflash")
@@ -65,21 +66,24 @@ def fill_stage1(root: Path, data, indices, select_config, progress=None) -> None
         _save(cache_file(root, "stage1", i), **_selection_arrays(env_sel, point_sel, noflash.shape[0]))
 
 
-def fill_stage2(root: Path, data, indices, bundle, select_config, extract_config, progress=None) -> None:
-    """Stage-2 lighting, extracted SGs and selections for ``indices`` (skipping cached ones)."""
+def fill_stage2(
+    root: Path, data, indices, predictor: StagedPredictor, select_config, extract_config, progress=None
+) -> None:
+    """Stage-2 lighting, extracted SGs and selections for ``indices`` (skipping cached ones), from
+    ``predictor``'s lighting net and SG extraction (:meth:`StagedPredictor.estimate_lighting`)."""
+    from ..model.predict import select_pair
     from ..nets.drwrap import lobes_from_env
     from .data import CAPTURE_SHOTS
-    from .inference import estimate_lighting, select_pair
 
     todo = [i for i in indices if not cache_file(root, "stage2", i).is_file()]
-    names = CAPTURE_SHOTS["near-far" if bundle.lighting.config.num_shots == 4 else "near"]
+    names = CAPTURE_SHOTS["near-far" if predictor.takes_far else "near"]
     for i in progress(todo, desc="stage-2 extraction", unit="sample") if progress else todo:
         # max(·, 0) as predict's input check does
         shots = [data.photos[i, data.shot(n)].clamp_min(0.0).permute(1, 2, 0).numpy() for n in names]
         flash, noflash = shots[0], shots[1]
-        _, flash_only, env, _ = estimate_lighting(bundle, *shots, extract_config=extract_config)
+        _, flash_only, env, _ = predictor.estimate_lighting(*shots, extract_config=extract_config)
         arrays = {"flash_only": flash_only, "sg": lobes_from_env(env).numpy()}
-        if bundle.cascade.config.use_exemplars:
+        if predictor.cascade.config.use_exemplars:
             arrays.update(
                 _selection_arrays(*select_pair(env, noflash, flash_only, select_config), flash.shape[0])
             )
@@ -128,7 +132,9 @@ class RunCaches:
 
     def stage2(self, bundle) -> dict:
         """Stage 2 of the first ``finetune_samples`` samples, from ``bundle``'s lighting net as it
-        is at the first call (put in eval mode)."""
+        is at the first call (put in eval mode), as a :class:`~ebr_mitsuba.model.predict.ModelPredictor`."""
+        from ..model.predict import ModelPredictor
+
         if "stage2" not in self._loaded:
             c = self.config
             m = min(len(self.data), c.stages.finetune_samples)
@@ -137,7 +143,7 @@ class RunCaches:
                 self.root,
                 self.data,
                 ddp.share(range(m), self.dist),
-                bundle,
+                ModelPredictor(bundle),
                 c.select_config(),
                 c.extract_config(),
                 self.progress,

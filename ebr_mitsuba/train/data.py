@@ -84,7 +84,7 @@ class TrainingData:
     def far_flash_only(self, idx: torch.Tensor) -> torch.Tensor:
         """The far flash-only image as inference forms it from the photos (no network predicts
         it): ``max(max(far flash, 0) − max(far no-flash, 0), 0)``, (B, 3, H, W)."""
-        from .renders import far_flash_only
+        from ..model.renders import far_flash_only
 
         return far_flash_only(
             self.photos[idx, self.shot("far_flash")], self.photos[idx, self.shot("far_noflash")]
@@ -92,8 +92,8 @@ class TrainingData:
 
     def lobes(self, idx: torch.Tensor) -> list[torch.Tensor]:
         """Ground-truth lobes of samples ``idx`` in photo units, (K_b, 7) each."""
+        from ..model.renders import photo_unit_lobes
         from ..nets.drwrap import lobes_from_padded
-        from .renders import photo_unit_lobes
 
         return photo_unit_lobes(lobes_from_padded(self.sg[idx], self.sg_mask[idx]), self.gains[idx])
 

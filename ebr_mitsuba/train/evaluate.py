@@ -1,9 +1,10 @@
 """``ebr eval``: a model (or a baseline) on every sample of a generated data set.
 
 For each sample the model sees the photos only (an ``ebrenv`` model the flash / no-flash pair
-through :func:`.inference.predict`, a ``dualloss`` model the five light shots) and its maps are
-scored against the ground truth with :mod:`.metrics`. ``seconds`` per sample is the wall time of
-the prediction alone (lighting, extraction, selection and the cascade for ``ebrenv``).
+through :meth:`ebr_mitsuba.model.predict.ModelPredictor.predict`, a ``dualloss`` model the five
+light shots) and its maps are scored against the ground truth with :mod:`.metrics`. ``seconds``
+per sample is the wall time of the prediction alone (lighting, extraction, selection and the
+cascade for ``ebrenv``).
 """
 
 from __future__ import annotations
@@ -31,8 +32,11 @@ def model_predictor(bundle, fixed_roughness: float | None = None) -> Callable[[d
     The photos are divided by the sample's recorded exposure (the reference exposure of
     ``docs/conventions.md``, "Exposure"). Photos finer than the model's grid are area-averaged to
     the grid and the maps area-resampled
-    back to the data set's resolution (the estimate a grid-sized model makes of that capture)."""
-    from .inference import predict
+    back to the data set's resolution (the estimate a grid-sized model makes of that capture).
+    An ``ebrenv`` model runs as a :class:`~ebr_mitsuba.model.predict.ModelPredictor`."""
+    from ..model.predict import ModelPredictor
+
+    predictor = ModelPredictor(bundle)
 
     def run(item: dict, names: list[str]) -> SVBRDF:
         photos = item["photos"] / float(item["exposure"])  # the reference exposure, as in training
@@ -44,19 +48,19 @@ def model_predictor(bundle, fixed_roughness: float | None = None) -> Callable[[d
             raise InputError(f"the data set has shots {names}; an ebrenv model needs flash / no-flash pairs")
         img = {n: photos[k].permute(1, 2, 0).numpy() for k, n in enumerate(names)}
         size = img[names[0]].shape[:2]
-        grid = _grid(bundle)
+        grid = predictor.grid
         if size != (grid, grid):  # a data set finer than the model's grid: the grid-resampled estimate
             from ..imageio import resize_area
 
             img = {n: resize_area(a, (grid, grid)) for n, a in img.items()}
         far = ()
-        if bundle.lighting.config.num_shots == 4:  # a near-far model reads the far pair too
+        if predictor.takes_far:  # a near-far model reads the far pair too
             if "far_flash" not in img or "far_noflash" not in img:
                 raise InputError(
                     f"the data set has shots {names}; this near-far model needs a near-far data set"
                 )
             far = (img["far_flash"], img["far_noflash"])
-        maps = predict(bundle, img["flash"], img["noflash"], *far, fixed_roughness=fixed_roughness).maps
+        maps = predictor.predict(img["flash"], img["noflash"], *far, fixed_roughness=fixed_roughness).maps
         if maps.shape != size:
             from ..materials import resample_svbrdf
 
@@ -66,21 +70,22 @@ def model_predictor(bundle, fixed_roughness: float | None = None) -> Callable[[d
     return run
 
 
-def estimate_predictor(bundle, data: str | Path, refine=None) -> Callable[[dict, list[str]], dict]:
+def estimate_predictor(predictor, data: str | Path, refine=None) -> Callable[[dict, list[str]], dict]:
     """``predict(item, shot_names) -> {"estimate": SVBRDF[, "estimate + refinement": SVBRDF]}``:
     what ``ebr estimate`` makes of each sample's photo files (its working size, full-resolution
     cascade and, with ``refine`` steps > 0, test-time refinement), with the data set's known flash
     intensity in photo units (× the sample's exposure, as an ``ebr capture`` directory's
     ``capture.json`` states it).
 
-    Each sample runs :func:`ebr_mitsuba.estimate.pipeline.run_estimate` into a temporary
-    directory; the maps are read back from its ``maps/`` (and ``maps_network/``)."""
+    ``predictor``: the :class:`~ebr_mitsuba.model.predictor.Predictor` of the estimates. Each
+    sample runs :func:`ebr_mitsuba.estimate.pipeline.run_estimate` into a temporary directory
+    (its files are written as by ``ebr estimate``); the maps are the ones it returns in memory
+    (``maps`` and, refined, ``network_maps``)."""
     import tempfile
 
     from ..data.store import sample_dirname
     from ..estimate.pipeline import EstimateConfig, run_estimate
     from ..estimate.refine import RefineConfig
-    from ..materials import load_material_dir
 
     root = Path(data)
     meta = json.loads((root / "dataset.json").read_text())
@@ -106,20 +111,12 @@ def estimate_predictor(bundle, data: str | Path, refine=None) -> Callable[[dict,
                 refine=refine,
                 flash_intensity=intensity,
             )
-            run_estimate(cfg, bundle=bundle)
+            result = run_estimate(cfg, predictor=predictor)
             if refine.steps > 0:
-                return {
-                    "estimate": load_material_dir(out / "maps_network"),
-                    "estimate + refinement": load_material_dir(out / "maps"),
-                }
-            return {"estimate": load_material_dir(out / "maps")}
+                return {"estimate": result.network_maps, "estimate + refinement": result.maps}
+            return {"estimate": result.maps}
 
     return run
-
-
-def _grid(bundle) -> int:
-    res = bundle.resolution
-    return int(res[0] if isinstance(res, (tuple, list)) else res)
 
 
 def evaluate(

@@ -18,12 +18,12 @@ from typing import NamedTuple
 
 import torch
 
+from ..model.renders import cascade_forward, diffuse_flash_renderer
 from ..nets import Maps
 from ..nets.losses import MapWeights, parameter_l1, rendering_loss, sample_view_light_pairs
 from ..nets.transforms import log_input
 from .config import LossConfig, TrainConfig
 from .data import CAPTURE_SHOTS, TrainingData
-from .renders import cascade_forward, diffuse_flash_renderer
 
 
 class PhasePlan(NamedTuple):
@@ -134,7 +134,7 @@ def first_stage_forward(cascade, batch: CascadeBatch, flash_intensity: float):
 
 
 def full_forward(cascade, batch: CascadeBatch, flash_intensity: float):
-    """The whole cascade as inference runs it (:func:`.renders.cascade_forward`)."""
+    """The whole cascade as inference runs it (:func:`ebr_mitsuba.model.renders.cascade_forward`)."""
     return cascade_forward(
         cascade,
         batch.noflash,

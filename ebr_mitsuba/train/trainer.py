@@ -74,14 +74,14 @@ import torch
 
 from ..errors import InputError
 from ..fsutil import OutputLock, atomic_write_text, is_temporary, remove_stale_temporaries
+from ..model.bundle import DataFacts, build_bundle, net_configs
+from ..model.checkpoint import load_checkpoint, save_checkpoint
+from ..model.device import pick_device
 from ..nets.losses import MapWeights
 from . import ddp
-from .bundle import DataFacts, build_bundle, net_configs
 from .cache import RunCaches
-from .checkpoint import load_checkpoint, save_checkpoint
 from .config import PHASES, TrainConfig
 from .data import CAPTURE_SHOTS, load_training_data
-from .inference import pick_device
 from .phases import Phase, PhaseInputs, PhasePlan, build_phase, plan_phases
 
 CSV_FIELDS = ("phase", "step", "loss", "terms", "lr", "samples_per_s", "seconds")
