@@ -414,6 +414,21 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
         store: list = []
         log(f"[bench models] {name}")
         finish(name, evaluate(_recording(predict, store), data, limit=n, seed=0, progress=progress), store)
+    shipped = load_predictor(None)
+    for name, fit in (("shipped model, ebr estimate --no-flash-fit", False),) + (
+        (("shipped model, ebr estimate", True),) if refine_cfg.steps <= 0 else ()
+    ):
+        store = []
+        log(f"[bench models] {name}")
+        one = estimate_predictor(shipped, data, RefineConfig(), flash_fit=fit)
+        res = evaluate(
+            _recording(lambda item, names, one=one: one(item, names)["estimate"], store),
+            data,
+            limit=n,
+            seed=0,
+            progress=progress,
+        )
+        finish(name, res, store)
     verdict = None
     if refine_cfg.steps > 0:
         label = {
@@ -424,7 +439,7 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
         log(f"[bench models] {label['estimate']}, with and without refinement")
         stores: dict[str, list] = {}
         many = evaluate_many(
-            _recording_many(estimate_predictor(load_predictor(None), data, refine_cfg), stores),
+            _recording_many(estimate_predictor(shipped, data, refine_cfg), stores),
             data,
             limit=n,
             seed=0,

@@ -40,6 +40,7 @@ Options (defaults in brackets):
   --max-shift F          largest flash/no-flash shift accepted, as a fraction of the width [0.02]
   --saturation-level V   EXR value at which pixels count as clipped [none]
   --max-size N           largest working size: larger photos are downsampled to it, with a warning [2048]
+  --no-flash-fit         keep the network's diffuse, specular and roughness (no flash-profile fit)
 
 Sizes: the lighting is estimated once at the model's grid (64x64 for the shipped model); the maps
 at the photos' resolution up to --max-size. Photos smaller than 32 pixels on the shorter side are
@@ -108,6 +109,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=DEFAULT_MAX_SIZE,
         metavar="N",
         help=f"largest working size; larger photos are downsampled to it (warning) [{DEFAULT_MAX_SIZE}]",
+    )
+    parser.add_argument(
+        "--no-flash-fit",
+        dest="flash_fit",
+        action="store_false",
+        help="keep the network's diffuse, specular and roughness maps (no flash-profile fit)",
     )
     parser.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
 
@@ -267,6 +274,7 @@ def run(args) -> int:
         saturation_level=args.saturation_level,
         flash_intensity=args.flash_intensity,
         max_size=args.max_size,
+        flash_fit=args.flash_fit,
     )
     with output_lock(args.out, "ebr estimate"):  # one writer per --out: a second one is refused
         summary = run_estimate(cfg, log=say, bar=progress)

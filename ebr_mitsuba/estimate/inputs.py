@@ -105,6 +105,7 @@ class Inputs:
     highlight: dict | None = None
     source_size: tuple[int, int] = (0, 0)
     warnings: list[str] = field(default_factory=list)
+    clip_level: float | None = None  # the flash shot's saturation level in these units (None: unknown)
 
     @property
     def size(self) -> tuple[int, int]:
@@ -140,7 +141,10 @@ class Inputs:
     def scaled(self, factor: float) -> Inputs:
         """The shots × ``factor`` (to the reference exposure: ``docs/conventions.md``, "Exposure")."""
         f = np.float32(factor)
-        return replace(self, images={k: (v * f).astype(np.float32) for k, v in self.images.items()})
+        clip = None if self.clip_level is None else self.clip_level * float(factor)
+        return replace(
+            self, images={k: (v * f).astype(np.float32) for k, v in self.images.items()}, clip_level=clip
+        )
 
     def to_json(self) -> dict:
         return {
@@ -229,6 +233,12 @@ def centre_crop(image: np.ndarray) -> np.ndarray:
     s = min(h, w)
     i, j = (h - s) // 2, (w - s) // 2
     return image[i : i + s, j : j + s]
+
+
+def _clip_level(levels: dict, default_level: float | None, exposure: dict) -> float | None:
+    """The flash shot's saturation level after its exposure factor (None: not known)."""
+    level = levels["flash"] if levels.get("flash") is not None else default_level
+    return None if level is None else float(level) * float(exposure["flash"]["factor"])
 
 
 def saturation_mask(images: dict[str, np.ndarray], levels: dict, default_level: float | None) -> np.ndarray:
@@ -617,6 +627,7 @@ def load_inputs(
         exposure=exposure,
         source_size=(int(source_size[0]), int(source_size[1])),
         warnings=warnings,
+        clip_level=_clip_level(levels, saturation_level, exposure),
     )
     if abs(fov - NEAR_FOV) > FOV_WARN:
         warnings.append(

@@ -93,6 +93,7 @@ class EstimateConfig:
     saturation_level: float | None = None
     flash_intensity: float | None = None
     max_size: int = DEFAULT_MAX_SIZE
+    flash_fit: bool = True  # diffuse, specular and roughness from the flash profile (estimate/flashfit.py)
 
 
 class EstimateResult(dict):
@@ -440,6 +441,26 @@ def run_estimate(
         tiles, tile, ensemble = len(pred.tiles), pred.tile, list(pred.members)
         stage("maps", t0)
 
+    flash_fit = None
+    if cfg.flash_fit:
+        from .flashfit import fit_flash
+
+        t0 = time.perf_counter()
+        log("fitting the flash profile: roughness, specular and the albedo level")
+        flash_img = work_inputs.images["flash"]
+        noflash_img = work_inputs.images.get("noflash", np.zeros_like(flash_img))
+        clip = work_inputs.clip_level if work_inputs.clip_level is not None else math.inf
+        flash_fit = fit_flash(
+            flash_img,
+            noflash_img,
+            intensity=DEFAULT_FLASH_INTENSITY,
+            camera=(0.0, 0.0, near_distance(inputs.fov)),
+            saturated=work_inputs.saturated,
+            clip_level=clip,
+        )
+        maps = flash_fit.maps(maps.normal, "ebr estimate (network normals, flash fit)")
+        stage("flash fit", t0)
+
     t0 = time.perf_counter()
     log(f"re-rendering the shots at {work}x{work}")
     with _Steps(bar, "re-render") as steps:
@@ -509,6 +530,7 @@ def run_estimate(
             "to_reference": scale,
             "source": known_source or "none (the reference exposure assumed)",
         },
+        "flash_fit": None if flash_fit is None else flash_fit.to_json(),
         "lobes": 0 if final_env is None else final_env.num_lobes,
         "rerender_error": {"network": net_errors, "refined": final_errors if refined else None},
         "refine": None

@@ -70,13 +70,16 @@ def model_predictor(bundle, fixed_roughness: float | None = None) -> Callable[[d
     return run
 
 
-def estimate_predictor(predictor, data: str | Path, refine=None) -> Callable[[dict, list[str]], dict]:
+def estimate_predictor(
+    predictor, data: str | Path, refine=None, flash_fit: bool = True
+) -> Callable[[dict, list[str]], dict]:
     """``predict(item, shot_names) -> {"estimate": SVBRDF[, "estimate + refinement": SVBRDF]}``:
     what ``ebr estimate`` makes of each sample's photo files (its working size, full-resolution
     cascade and, with ``refine`` steps > 0, test-time refinement), with the data set's known flash
     intensity in photo units (× the sample's exposure, as an ``ebr capture`` directory's
     ``capture.json`` states it).
 
+    ``flash_fit``: ``ebr estimate``'s flash-profile fit (its default, on; False: ``--no-flash-fit``).
     ``predictor``: the :class:`~ebr_mitsuba.model.predictor.Predictor` of the estimates. Each
     sample runs :func:`ebr_mitsuba.estimate.pipeline.run_estimate` into a temporary directory
     (its files are written as by ``ebr estimate``); the maps are the ones it returns in memory
@@ -110,6 +113,7 @@ def estimate_predictor(predictor, data: str | Path, refine=None) -> Callable[[di
                 out=str(out),
                 refine=refine,
                 flash_intensity=intensity,
+                flash_fit=flash_fit,
             )
             result = run_estimate(cfg, predictor=predictor)
             if refine.steps > 0:
