@@ -28,8 +28,8 @@ height, which then trades against r).
 
 The diffuse map is the level times a texture pattern: the flash photo with the fitted lobe
 removed, divided by its own local mean over a box of ``pattern`` × the image side (grey, so the
-level keeps the colour): ``ρ(x) = L_c · P(x)``, ``L_c`` per channel the median of
-``(F_c − S)/G`` over unsaturated pixels. The flash photo is used for the pattern because it is the
+level keeps the colour): ``ρ(x) = L_c · P(x)``, ``L_c`` per channel the mean of the middle 80 %
+of ``(F_c − S)/G`` over unsaturated pixels (a median would pick one tone of a two-tone texture). The flash photo is used for the pattern because it is the
 brighter, less quantised of the two shots; its low frequencies (flash fall-off, environment
 gradients) are what the local mean divides out, at the price of the albedo's own low
 frequencies (the level is global).
@@ -59,6 +59,7 @@ from ..typedconfig import config, option
 __all__ = ["FlashFit", "FlashFitConfig", "fit_flash"]
 
 METAL_MARGIN = 0.5  # the metal hypothesis wins when its cost is below this × the dielectric's
+TRIM = 0.1  # the albedo level is the mean of the middle 80 % of the per-pixel ratios
 TABLE_SIZE = 1024  # cos θ samples of the tabulated lobe (linear interpolation per pixel)
 
 
@@ -136,7 +137,15 @@ def _view_geometry(height: int, width: int, camera) -> tuple[torch.Tensor, torch
     to_cam = torch.tensor(camera, dtype=torch.float64) - p
     d2 = (to_cam * to_cam).sum(-1)
     v = to_cam / d2.sqrt()[:, None]
-    return v[:, 2], d2, v
+    return v[:, 2].contiguous(), d2, v
+
+
+def _trimmed_mean(x: torch.Tensor, cut: float = TRIM) -> torch.Tensor:
+    """Mean of the values between the ``cut`` and ``1 − cut`` quantiles (robust to the residue of
+    the highlight and to outliers, unbiased for a symmetric or two-tone texture)."""
+    lo, hi = torch.quantile(x, torch.tensor([cut, 1.0 - cut], dtype=x.dtype))
+    inside = x[(x >= lo) & (x <= hi)]
+    return inside.mean() if inside.numel() else x.mean()
 
 
 def _box_mean(x: torch.Tensor, k: int) -> torch.Tensor:
@@ -293,7 +302,7 @@ def fit_flash(
     s_pix = lobe_pixels(r_fit)  # g units
     spec_radiance = s_pix[:, None] * shade[:, None]  # flash-only radiance of the lobe (grey F0)
     ratio = (f_only - spec_radiance) / shade[:, None]
-    level_rgb = torch.stack([ratio[ok, c].median() for c in range(3)]).clamp(1e-4, 1.0)
+    level_rgb = torch.stack([_trimmed_mean(ratio[ok, c]) for c in range(3)]).clamp(1e-4, 1.0)
     # the texture pattern: the flash photo minus the lobe, over its local mean (grey)
     img = (fl - spec_radiance / to_radiance).clamp_min(0.0).reshape(h, w, 3).permute(2, 0, 1)
     k = max(3, int(round(opts.pattern * max(h, w))) | 1)

@@ -1,0 +1,113 @@
+"""The flash-profile fit (ebr_mitsuba.estimate.flashfit) on synthetic captures with known answers.
+
+Captures are rendered by the torch mirror of the BRDF (near flash, flat sample) so that the fit's
+model is exact: the tolerances then bound the fit's own error (ring medians, the roughness grid
+step of 0.01, the saturated tip). Fixed seeds; 128² to keep the suite fast.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from ebr_mitsuba.errors import InputError
+from ebr_mitsuba.estimate.flashfit import FlashFitConfig, fit_flash
+from ebr_mitsuba.nets import torch_brdf as tb
+from ebr_mitsuba.nets.maps import Maps
+
+RES = 128
+
+
+def _capture(diffuse, specular, roughness, ambient=0.02, meter=0.9, seed=0, noise=0.0):
+    """(flash, noflash, exposure) photos of a flat sample: flash-only render + a constant ambient
+    term, exposed so that the 99th percentile of the flash photo sits at ``meter``, clipped at 1."""
+    h = w = RES
+    normal = torch.zeros(1, 3, h, w)
+    normal[:, 2] = 1
+    d = torch.as_tensor(np.asarray(diffuse, np.float32)).permute(2, 0, 1)[None]
+    s = torch.tensor(specular, dtype=torch.float32).view(1, 3, 1, 1).expand(1, 3, h, w)
+    r = torch.full((1, 1, h, w), float(roughness))
+    flash_only = tb.render_point_light(Maps(normal, d, s, r), tb.NEAR_CAMERA)[0].permute(1, 2, 0).numpy()
+    env = ambient * np.asarray(diffuse, np.float32) + 1e-3
+    flash = flash_only + env
+    exposure = meter / float(np.quantile(flash.max(-1), 0.99))
+    rng = np.random.default_rng(seed)
+
+    def photo(x):
+        x = x * exposure
+        if noise:
+            x = x + rng.normal(0.0, noise, x.shape)
+        return np.clip(x, 0.0, 1.0).astype(np.float32)
+
+    return photo(flash), photo(env), exposure
+
+
+def _uniform(rgb):
+    return np.broadcast_to(np.asarray(rgb, np.float32), (RES, RES, 3)).copy()
+
+
+@pytest.mark.parametrize("roughness", [0.15, 0.4, 0.7])
+def test_dielectric_roughness_and_level_recovered(roughness):
+    albedo = (0.35, 0.25, 0.15)
+    flash, noflash, exposure = _capture(_uniform(albedo), (0.04,) * 3, roughness)
+    fit = fit_flash(flash, noflash, to_radiance=1 / exposure)
+    assert not fit.metal
+    assert abs(fit.roughness - roughness) <= 0.05, fit.roughness
+    np.testing.assert_allclose(fit.level, albedo, rtol=0.03)
+    np.testing.assert_allclose(
+        fit.maps(np.dstack([np.zeros((RES, RES, 2)), np.ones((RES, RES))])).specular, 0.04
+    )
+
+
+def test_sharp_highlight_is_clipped_and_still_found():
+    flash, noflash, exposure = _capture(_uniform((0.3, 0.3, 0.3)), (0.04,) * 3, 0.08)
+    assert (flash >= 0.995).any(), "the test needs a clipped highlight tip"
+    fit = fit_flash(flash, noflash, to_radiance=1 / exposure)
+    assert abs(fit.roughness - 0.08) <= 0.04, fit.roughness
+
+
+def test_metal_hypothesis():
+    f0 = (0.9, 0.6, 0.3)
+    flash, noflash, exposure = _capture(_uniform((0.0, 0.0, 0.0)), f0, 0.35, ambient=0.0)
+    fit = fit_flash(flash, noflash, to_radiance=1 / exposure)
+    assert fit.metal
+    assert abs(fit.roughness - 0.35) <= 0.05, fit.roughness
+    np.testing.assert_allclose(fit.specular_rgb, f0, rtol=0.1)
+    assert float(np.abs(fit.diffuse).max()) == 0.0
+
+
+def test_texture_pattern_beats_the_constant():
+    """A checker albedo: the fitted diffuse map carries the texture (its RMSE well below that of
+    the map's own mean) under photo noise."""
+    yy, xx = np.mgrid[0:RES, 0:RES]
+    checker = ((yy // 8 + xx // 8) % 2).astype(np.float32)
+    albedo = np.stack([0.2 + 0.3 * checker] * 3, -1)
+    flash, noflash, exposure = _capture(albedo, (0.04,) * 3, 0.5, noise=0.002)
+    fit = fit_flash(flash, noflash, to_radiance=1 / exposure)
+    err = float(np.sqrt(np.mean((fit.diffuse - albedo) ** 2)))
+    const = float(np.sqrt(np.mean((albedo.mean() - albedo) ** 2)))
+    assert err < 0.3 * const, (err, const)
+
+
+def test_explicit_mask_and_no_clip_level():
+    flash, noflash, exposure = _capture(_uniform((0.3, 0.3, 0.3)), (0.04,) * 3, 0.5)
+    a = fit_flash(flash, noflash, to_radiance=1 / exposure)
+    b = fit_flash(flash, noflash, to_radiance=1 / exposure, saturated=(flash >= 0.995).any(-1))
+    assert a.roughness == b.roughness
+    c = fit_flash(flash, noflash, to_radiance=1 / exposure, clip_level=float("inf"))
+    assert abs(c.roughness - 0.5) <= 0.05
+
+
+def test_bad_inputs_are_one_line_errors():
+    flash, noflash, exposure = _capture(_uniform((0.3, 0.3, 0.3)), (0.04,) * 3, 0.5)
+    with pytest.raises(InputError, match="same"):
+        fit_flash(flash, noflash[:-1])
+    with pytest.raises(InputError, match="unsaturated"):
+        fit_flash(np.ones_like(flash), noflash)
+    with pytest.raises(InputError, match="saturation mask"):
+        fit_flash(flash, noflash, saturated=np.zeros((4, 4), bool))
+    with pytest.raises(InputError, match="roughness_min"):
+        FlashFitConfig(roughness_min=0.9, roughness_max=0.5)
+    with pytest.raises(InputError):
+        FlashFitConfig(f0=1.5)
