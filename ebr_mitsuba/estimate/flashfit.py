@@ -23,20 +23,22 @@ saturated pixels give (the tip of a sharp highlight is clipped, so its rings car
   pixels that are not saturated; a broad one would miss the clipped tip.
 
 The roughness of lowest cost is kept. F₀ is fixed (``f0``, default 0.04: real dielectrics, the
-measured table of ``$EBR_DATA_DIR/measured``); metals break that assumption (their F₀ is the lobe's
-height, which then trades against r).
+measured table of ``$EBR_DATA_DIR/measured``). A second hypothesis, a metal (no diffuse,
+``g = m · π f_s(θ; 1, r)``, m solved like L), wins when its cost is below ``METAL_MARGIN`` (½) of
+the dielectric's; its F₀ per channel is the median ratio of the flash-only image to the unit lobe.
 
 The diffuse map is the level times a texture pattern: the flash photo with the fitted lobe
 removed, divided by its own local mean over a box of ``pattern`` × the image side (grey, so the
 level keeps the colour): ``ρ(x) = L_c · P(x)``, ``L_c`` per channel the mean of the middle 80 %
-of ``(F_c − S)/G`` over unsaturated pixels (a median would pick one tone of a two-tone texture). The flash photo is used for the pattern because it is the
-brighter, less quantised of the two shots; its low frequencies (flash fall-off, environment
-gradients) are what the local mean divides out, at the price of the albedo's own low
-frequencies (the level is global).
+of ``(F_c − S)/G`` over unsaturated pixels (a median would pick one tone of a two-tone
+texture). The flash photo is used for the pattern because it is the brighter, less quantised of
+the two shots; its low frequencies (flash fall-off, environment gradients) are what the local
+mean divides out, at the price of the albedo's own low frequencies (the level is global). Shading
+by the normals' relief stays in the pattern (it is read as albedo texture).
 
-On the fixed test split (Mitsuba 256 spp captures, 8-bit photos), this fit alone gives the
-material's mean roughness within 0.10 RMSE and its albedo level within 4 % (the network's maps:
-0.14 roughness RMSE); ``ebr bench models`` measures it as the predictor "flash fit".
+``ebr estimate`` runs the fit by default after the network (``--no-flash-fit``: the network's
+maps) and keeps the network's normals; ``ebr bench models`` scores both on the test split
+(``docs/models.md``).
 
 Input convention: ``flash`` and ``noflash`` are (H, W, 3) linear photo values (saturating at
 ``clip``); ``to_radiance`` scales them to the units where the flash has intensity ``intensity``
