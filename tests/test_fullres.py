@@ -147,7 +147,8 @@ def test_full_resolution_maps_one_lighting_pass_and_tiles(
     paths = _write_capture(tmp_path / "cap", 96)
     out = tmp_path / "est"
     code, stdout, err = _estimate(
-        ["--flash", paths["flash"], "--noflash", paths["noflash"], "--out", out, "--json"], capsys
+        ["--flash", paths["flash"], "--noflash", paths["noflash"], "--out", out, "--json", "--no-flash-fit"],
+        capsys,
     )
     assert code == 0, err
     summary = json.loads(stdout)  # nothing but the summary on stdout
@@ -169,7 +170,8 @@ def test_full_resolution_maps_one_lighting_pass_and_tiles(
     fake_lighting.clear()
     monkeypatch.setattr(fullres, "PASS_MEMORY", fullres.pass_bytes(shipped.cascade, 64 * 64))
     code, stdout, err = _estimate(
-        ["--flash", paths["flash"], "--noflash", paths["noflash"], "--out", out, "--json"], capsys
+        ["--flash", paths["flash"], "--noflash", paths["noflash"], "--out", out, "--json", "--no-flash-fit"],
+        capsys,
     )
     assert code == 0, err
     summary = json.loads(stdout)

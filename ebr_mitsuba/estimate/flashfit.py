@@ -26,6 +26,9 @@ The roughness of lowest cost is kept. F₀ is fixed (``f0``, default 0.04: real 
 measured table of ``$EBR_DATA_DIR/measured``). A second hypothesis, a metal (no diffuse,
 ``g = m · π f_s(θ; 1, r)``, m solved like L), wins when its cost is below ``METAL_MARGIN`` (½) of
 the dielectric's; its F₀ per channel is the median ratio of the flash-only image to the unit lobe.
+Known failure: a high-contrast two-tone texture without a visible highlight (e.g. a 0.55 / 0.1
+checker of roughness 0.3–0.6 seen in EXR, no clipping) makes the ring medians jump between the
+tones, which can let the metal hypothesis win (diffuse 0); ``--no-flash-fit`` avoids it.
 
 The diffuse map is the level times a texture pattern: the flash photo with the fitted lobe
 removed, divided by its own local mean over a box of ``pattern`` × the image side (grey, so the
