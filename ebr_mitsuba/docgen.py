@@ -92,6 +92,8 @@ def config_sections() -> list[tuple[str, str, type, object]]:
     """(title, key prefix, config class, preset or None) of every documented config, in pipeline
     order."""
     from .data import config as data
+    from .estimate.fivelight import FiveLightConfig
+    from .estimate.pipeline import EstimateConfig
     from .estimate.refine import RefineConfig
     from .exemplar.select import SELECT_PRESETS, SelectConfig
     from .extract.config import EXTRACT_PRESETS, ExtractConfig
@@ -111,7 +113,9 @@ def config_sections() -> list[tuple[str, str, type, object]]:
     out += [
         ("`ebr extract-sg` (ExtractConfig, preset `default`)", "", ExtractConfig, None),
         ("`ebr select-exemplars` (SelectConfig, preset `default`)", "", SelectConfig, None),
+        ("`ebr estimate` (EstimateConfig)", "", EstimateConfig, None),
         ("test-time refinement (RefineConfig)", "", RefineConfig, None),
+        ("`ebr estimate --lights` (FiveLightConfig)", "", FiveLightConfig, None),
         ("`ebr insert` (InsertConfig)", "", InsertConfig, None),
     ]
     out += [(f"`ebr train` [{name}]", f"{name}.", cls, None) for name, cls in train.TABLES.items()]

@@ -40,8 +40,8 @@ Declaring a config::
         def __post_init__(self):
             check(self)          # field checks (config() adds this when __post_init__ is absent)
 
-Building a command's flags from it (how ``ebr extract-sg`` does it; ``ebr estimate`` can do the
-same for ``EstimateConfig``/``RefineConfig``)::
+Building a command's flags from it (how ``ebr extract-sg`` does it; ``ebr estimate`` does the
+same for ``EstimateConfig``, ``RefineConfig`` and ``FiveLightConfig``)::
 
     REFINE_FLAGS = ("steps", "lobes", "lr", "seconds", "basis", "mode")
 
@@ -53,14 +53,17 @@ same for ``EstimateConfig``/``RefineConfig``)::
 
 ``add_flags(..., base=preset)`` makes a preset's values the defaults; ``rename={"env_mode":
 "--mode"}`` (given to both calls) changes a flag's name for one command; :func:`flag_dest` is the
-argparse attribute of a field's flag. A bool field is a switch (``store_true``, or
-``--x/--no-x`` when its default is true); ``X | None`` fields accept ``none``.
+argparse attribute of a field's flag and :func:`flag_value` the checked value of one flag. A bool
+field is a switch (``store_true``, or ``--x/--no-x`` when its default is true); ``X | None``
+fields accept ``none``; a field without a default has no default on the command line either (its
+flag is an argparse ``required`` one when the field is ``required``).
 
 Field metadata (keywords of :func:`option`): ``minimum``/``maximum`` (inclusive), ``above``/
 ``below`` (exclusive) — for a sequence they apply to every item; ``choices`` (a str, or every
 item of a list of str); ``nonempty``, ``length`` and ``ordered`` (non-decreasing) for sequences;
 ``required`` (a file must set it); ``presets`` (name → instance, for a nested config or a config
-named by a string); ``flag``, ``metavar`` (command line); ``shown`` (the default as the docs and
+named by a string); ``flag``, ``metavar``, ``nargs`` (command line: ``"+"`` reads a
+sequence as separate words, ``--lights A B C``); ``shown`` (the default as the docs and
 ``--help`` write it); ``fix`` (advice appended to a range error); ``extra`` (free metadata a
 module interprets itself, e.g. the data config's ``path`` kind).
 """
@@ -103,6 +106,7 @@ class Meta:
     preset_kind: str = ""
     flag: str | None = None
     metavar: str | None = None
+    nargs: str | None = None
     shown: str | None = None
     fix: str = ""
     extra: Mapping = dataclasses.field(default_factory=dict)
@@ -567,15 +571,23 @@ _METAVARS = {int: "N", float: "X", str: "S"}
 def add_flags(parser, cls, names: Sequence[str], *, base=None, rename: Mapping | None = None) -> None:
     """One option per field in ``names``: flag, default (``base``'s or the field's) and help
     (meaning, range and default) from the metadata. Values are read as text and checked by
-    :func:`from_args`, so a bad one is one line naming the flag."""
+    :func:`from_args`, so a bad one is one line naming the flag. A field without a default gets
+    none (None when not given; argparse-required when the field is ``required``)."""
     fs, hs = _fields(cls), hints(cls)
     for name in names:
         f, m = fs[name], meta_of(fs[name])
         inner, _ = _split_optional(hs[name])
         default = _default(f, base)
         flag = flag_name(cls, name, rename)
-        rng = range_text(m, hs[name])
+        rng = range_text(dataclasses.replace(m, required=False), hs[name])
         text = m.meaning + (f" ({rng})" if rng and inner is not bool else "")
+        if default is _MISSING:
+            text = (f"{text} [{m.shown}]" if m.shown is not None else text).replace("%", "%%")
+            extra = {"nargs": m.nargs} if m.nargs else {}
+            parser.add_argument(
+                flag, default=None, required=m.required, metavar=m.metavar or "V", help=text, **extra
+            )
+            continue
         shown = default_text(f, base)
         shown = shown[1:-1] if isinstance(default, str) and shown == json.dumps(default) else shown
         if isinstance(default, (list, tuple)) and shown == default_text(f):
@@ -591,7 +603,8 @@ def add_flags(parser, cls, names: Sequence[str], *, base=None, rename: Mapping |
             continue
         origin = typing.get_origin(inner)
         metavar = m.metavar or ("A,B" if origin in (list, tuple) else _METAVARS.get(inner, "V"))
-        parser.add_argument(flag, default=default, metavar=metavar, help=text)
+        extra = {"nargs": m.nargs} if m.nargs else {}
+        parser.add_argument(flag, default=default, metavar=metavar, help=text, **extra)
 
 
 def _parse_text(text: str, hint, flag: str):
@@ -619,17 +632,21 @@ def _parse_text(text: str, hint, flag: str):
     return text
 
 
+def flag_value(cls, args, name: str, *, rename: Mapping | None = None):
+    """The value of one field's flag in the parsed ``args``: text parsed, then checked like the
+    field (an :class:`InputError` naming the flag)."""
+    hint = hints(cls)[name]
+    flag = flag_name(cls, name, rename)
+    value = getattr(args, flag_dest(cls, name, rename))
+    if isinstance(value, str) and hint is not str:
+        value = _parse_text(value, hint, flag)
+    return convert(value, hint, meta_of(_fields(cls)[name]), key=flag, error=InputError)
+
+
 def from_args(cls, args, names: Sequence[str], *, base=None, rename: Mapping | None = None, **fixed):
     """The config of the flags :func:`add_flags` added (text parsed, then every field checked,
     an error naming the flag), over ``base`` or the defaults; ``fixed`` sets other fields."""
-    fs, hs = _fields(cls), hints(cls)
-    values = {}
-    for name in names:
-        flag = flag_name(cls, name, rename)
-        value = getattr(args, flag_dest(cls, name, rename))
-        if isinstance(value, str) and hs[name] is not str:
-            value = _parse_text(value, hs[name], flag)
-        values[name] = convert(value, hs[name], meta_of(fs[name]), key=flag, error=InputError)
+    values = {name: flag_value(cls, args, name, rename=rename) for name in names}
     values.update(fixed)
     return dataclasses.replace(base, **values) if base is not None else cls(**values)
 
@@ -647,6 +664,7 @@ __all__ = [
     "field",
     "flag_dest",
     "flag_name",
+    "flag_value",
     "from_args",
     "from_dict",
     "hints",

@@ -11,6 +11,8 @@ import pytest
 from ebr_mitsuba import typedconfig as tc
 from ebr_mitsuba.data import config as data_config
 from ebr_mitsuba.errors import ConfigError, InputError
+from ebr_mitsuba.estimate.fivelight import FiveLightConfig
+from ebr_mitsuba.estimate.pipeline import EstimateConfig
 from ebr_mitsuba.estimate.refine import REFINE_FLAGS, RefineConfig
 from ebr_mitsuba.exemplar.select import SELECT_PRESETS, SelectConfig
 from ebr_mitsuba.extract.config import EXTRACT_PRESETS, ExtractConfig
@@ -37,6 +39,8 @@ MIGRATED = [
     MAIRSize,
     UNetSize,
 ]
+# configs with required fields (no defaults): their flags are compared in tests/test_estimate_cli.py
+WITH_REQUIRED = [EstimateConfig, FiveLightConfig]
 
 
 @tc.config
@@ -193,7 +197,7 @@ def test_flags_parse_text_and_errors_name_the_flag():
     ) == (ExtractConfig())
 
 
-@pytest.mark.parametrize("cls", [*MIGRATED, Outer], ids=lambda c: c.__name__)
+@pytest.mark.parametrize("cls", [*MIGRATED, *WITH_REQUIRED, Outer], ids=lambda c: c.__name__)
 def test_generated_tables_list_every_field(cls):
     names = [f.name for f in dataclasses.fields(cls)]
     rst = tc.table(cls)
@@ -218,10 +222,14 @@ def test_docs_page_and_module_docstrings_carry_the_tables():
 
 
 def test_every_config_class_is_frozen_and_checked():
-    for cls in MIGRATED:
+    for cls in [*MIGRATED, *WITH_REQUIRED]:
         assert cls.__dataclass_params__.frozen, cls.__name__
         assert hasattr(cls, "__typedconfig__"), cls.__name__
     with pytest.raises(InputError, match="--refine-basis"):
         RefineConfig(basis=99)
     with pytest.raises(InputError, match="--object-scale"):
         InsertConfig(scale=2.0)
+    with pytest.raises(InputError, match=r"^EstimateConfig: --fov: must be in \[10, 120\], got 5\.0"):
+        EstimateConfig(flash="f", out="o", fov=5)
+    with pytest.raises(InputError, match="--flash-intensity: must be > 0"):
+        FiveLightConfig(lights=("a",), out="o", light_intensity=0.0)

@@ -52,6 +52,7 @@ positions more than :data:`POSITION_WARN` from those the model was trained with 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
@@ -68,6 +69,7 @@ from ..fsutil import atomic_dir
 from ..geometry import DEFAULT_FLASH_INTENSITY, FIVE_LIGHT_POSITIONS, NEAR_DISTANCE, NEAR_FOV, Shot
 from ..imageio import IMAGE_SUFFIXES, resize_area
 from ..svbrdf import SVBRDF
+from ..typedconfig import config, option
 from . import outputs
 from .inputs import (
     HIGHLIGHT_MIN_R2,
@@ -93,20 +95,47 @@ POSITION_WARN = 0.05  # world units (the sample is 2 wide) from the training lig
 _FIX = "give five photos (one per light) or a directory of 'ebr capture --setup five-light'"
 
 
-@dataclass(frozen=True)
+@config(error=InputError, cli=True)
 class FiveLightConfig:
-    """Everything a five-light estimate needs (the defaults are the command's).
+    """Everything a five-light estimate needs: the options of ``ebr estimate --lights`` (flags,
+    defaults and help generated from these fields; ``--out``, ``--checkpoint``,
+    ``--flash-intensity``, ``--saturation-level`` and ``--max-size`` are the flags of the same
+    :class:`~ebr_mitsuba.estimate.pipeline.EstimateConfig` fields). ``lights``: five photo paths
+    or one directory (module docstring)."""
 
-    ``lights``: five photo paths or one directory (module docstring); ``light_intensity``: the
-    intensity of every light in W/sr at the photos' exposure (None: ``capture.json``, else
-    fitted); ``saturation_level``: the EXR value at which pixels count as clipped."""
+    lights: tuple[str, ...] = option(
+        meaning="five photos lit by five known point lights (light0..light4), or one directory of "
+        "'ebr capture --setup five-light'; instead of --flash",
+        flag="--lights",
+        metavar="L",
+        nargs="+",
+    )
+    out: str = option(
+        meaning="output directory (complete or not at all)", required=True, flag="--out", metavar="DIR"
+    )
+    checkpoint: str | None = option(
+        None, "dual-loss model checkpoint", flag="--checkpoint", metavar="C", shown="the shipped model"
+    )
+    light_intensity: float | None = option(
+        None,
+        "the intensity of every light in W/sr at the photos' exposure",
+        above=0,
+        flag="--flash-intensity",
+        metavar="I",
+        shown="capture.json, else fitted",
+    )
+    saturation_level: float | None = option(
+        None, "EXR value at which pixels count as clipped", above=0, flag="--saturation-level", metavar="V"
+    )
+    max_size: int = option(
+        DEFAULT_MAX_SIZE,
+        "largest working size (at least the model grid): larger photos are downsampled to it",
+        flag="--max-size",
+        metavar="N",
+    )
 
-    lights: tuple[str, ...]
-    out: str
-    checkpoint: str | None = None
-    light_intensity: float | None = None
-    saturation_level: float | None = None
-    max_size: int = DEFAULT_MAX_SIZE
+
+FIVELIGHT_FLAGS = tuple(f.name for f in dataclasses.fields(FiveLightConfig))  # all set by flags
 
 
 @dataclass(frozen=True)
@@ -600,6 +629,7 @@ def run_fivelight(
 
 
 __all__ = [
+    "FIVELIGHT_FLAGS",
     "FiveLightConfig",
     "LIGHT_COUNT",
     "LightSetup",

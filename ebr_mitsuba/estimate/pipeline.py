@@ -50,11 +50,11 @@ as they are (the reference exposure assumed) and the intensity is fitted.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -66,9 +66,10 @@ from ..geometry import DEFAULT_FLASH_INTENSITY, FAR_DISTANCE, FAR_FOV, Shot
 from ..model.predictor import Prediction, Predictor
 from ..sgenv import SGEnvironment
 from ..svbrdf import SVBRDF
+from ..typedconfig import config, option
 from . import outputs
 from .fullres import release_memory
-from .inputs import DEFAULT_FOV, DEFAULT_MAX_SHIFT, Inputs, load_inputs
+from .inputs import DEFAULT_FOV, DEFAULT_MAX_SHIFT, MAX_FOV, MIN_FOV, Inputs, load_inputs
 from .metrics import map_rmse
 from .refine import RefineConfig, ShotTarget, fit_flash_intensity, refine, rerender_errors
 from .resample import DEFAULT_MAX_SIZE, working_size
@@ -76,24 +77,80 @@ from .resample import DEFAULT_MAX_SIZE, working_size
 ESTIMATE_FORMAT = "ebr-estimate/1"
 
 
-@dataclass(frozen=True)
+@config(error=InputError, cli=True)
 class EstimateConfig:
-    """Everything an estimate needs (defaults here are the command's defaults)."""
+    """Everything an estimate needs: the options of ``ebr estimate`` (its flags, defaults and help
+    are generated from these fields; a bad value is an :class:`~ebr_mitsuba.errors.InputError`
+    naming the flag). ``refine`` holds the :class:`~.refine.RefineConfig` of the refinement."""
 
-    flash: str
-    out: str
-    noflash: str | None = None
-    far_flash: str | None = None
-    far_noflash: str | None = None
-    checkpoint: str | None = None
-    refine: RefineConfig = field(default_factory=RefineConfig)
-    exposure_ratio: float | None = None
-    fov: float = DEFAULT_FOV
-    max_shift: float = DEFAULT_MAX_SHIFT
-    saturation_level: float | None = None
-    flash_intensity: float | None = None
-    max_size: int = DEFAULT_MAX_SIZE
-    flash_fit: bool = True  # diffuse, specular and roughness from the flash profile (estimate/flashfit.py)
+    flash: str = option(
+        meaning="photo with the flash (EXR, PNG, JPEG); or --lights", flag="--flash", metavar="F"
+    )
+    out: str = option(
+        meaning="output directory (complete or not at all)", required=True, flag="--out", metavar="DIR"
+    )
+    noflash: str | None = option(
+        None, "photo without the flash (none: a flash-only capture)", flag="--noflash", metavar="NF"
+    )
+    far_flash: str | None = option(None, "far shot with the flash", flag="--far-flash", metavar="F2")
+    far_noflash: str | None = option(None, "far shot without the flash", flag="--far-noflash", metavar="NF2")
+    checkpoint: str | None = option(
+        None, "model checkpoint", flag="--checkpoint", metavar="C", shown="the shipped model"
+    )
+    refine: RefineConfig = option(RefineConfig(), "test-time refinement (RefineConfig; its --refine-* flags)")
+    exposure_ratio: float | None = option(
+        None,
+        "no-flash exposure / flash exposure when the files carry no EXIF",
+        above=0,
+        flag="--exposure-ratio",
+        metavar="R",
+        shown="EXIF, else 1",
+    )
+    fov: float = option(
+        DEFAULT_FOV,
+        "horizontal field of view of the photos in degrees",
+        minimum=MIN_FOV,
+        maximum=MAX_FOV,
+        flag="--fov",
+        metavar="DEG",
+        fix="45 for the capture guide's framing",
+    )
+    max_shift: float = option(
+        DEFAULT_MAX_SHIFT,
+        "largest flash/no-flash shift accepted, as a fraction of the width",
+        minimum=0,
+        maximum=0.5,
+        flag="--max-shift",
+        metavar="F",
+    )
+    saturation_level: float | None = option(
+        None, "EXR value at which pixels count as clipped", above=0, flag="--saturation-level", metavar="V"
+    )
+    flash_intensity: float | None = option(
+        None,
+        "flash intensity in W/sr at the flash shot's exposure (--lights: each light's)",
+        above=0,
+        flag="--flash-intensity",
+        metavar="I",
+        shown="capture.json, else fitted",
+    )
+    max_size: int = option(
+        DEFAULT_MAX_SIZE,
+        "largest working size (at least the model grid): larger photos are downsampled to it, with a warning",
+        flag="--max-size",
+        metavar="N",
+    )
+    flash_fit: bool = option(
+        True,
+        "diffuse, specular and roughness from the flash-profile fit (estimate/flashfit.py); "
+        "--no-flash-fit keeps the network's maps",
+        flag="--flash-fit",
+    )
+
+
+ESTIMATE_FLAGS = tuple(  # the fields ebr estimate sets from flags (refine: its own REFINE_FLAGS)
+    f.name for f in dataclasses.fields(EstimateConfig) if f.name != "refine"
+)
 
 
 class EstimateResult(dict):
@@ -598,6 +655,7 @@ def run_estimate(
 
 
 __all__ = [
+    "ESTIMATE_FLAGS",
     "ESTIMATE_FORMAT",
     "EstimateConfig",
     "EstimateResult",

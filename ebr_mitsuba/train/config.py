@@ -32,7 +32,7 @@ from the data set (``[exemplars].env_roughness``). (dualloss) — the fields of
 
 .. options:: StageSteps
 
-**[selection]** — :class:`ebr_mitsuba.extract.select.SelectConfig` fields for the exemplar
+**[selection]** — :class:`ebr_mitsuba.exemplar.select.SelectConfig` fields for the exemplar
 selection of training and inference over the named preset ``SELECT_PRESETS["training"]``
 (closed-form SG renders at a 16-pixel comparison: about 0.4 s per sample at 64², against 1.3 s
 for the selection's own defaults). **[extract]** — :class:`ebr_mitsuba.extract.ExtractConfig`

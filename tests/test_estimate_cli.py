@@ -1,0 +1,178 @@
+"""``ebr estimate``'s flags are generated from EstimateConfig, RefineConfig and FiveLightConfig: the
+defaults ``--help`` shows and the parser holds are the fields' defaults, and the configs built
+from the flags are the configs' own (no default restated in the command). Nothing is estimated
+here: these tests only parse."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import re
+
+import pytest
+
+from ebr_mitsuba import typedconfig as tc
+from ebr_mitsuba.cli import build_parser, main
+from ebr_mitsuba.commands import estimate as cmd
+from ebr_mitsuba.estimate.fivelight import FIVELIGHT_FLAGS, FiveLightConfig
+from ebr_mitsuba.estimate.pipeline import ESTIMATE_FLAGS, EstimateConfig
+from ebr_mitsuba.estimate.refine import REFINE_FLAGS, RefineConfig
+
+CONFIGS = ((EstimateConfig, ESTIMATE_FLAGS), (RefineConfig, REFINE_FLAGS), (FiveLightConfig, FIVELIGHT_FLAGS))
+NOT_CONFIG = {"--help", "--json", "--variant", "--deterministic"}  # options of the command itself
+
+
+def _parser() -> argparse.ArgumentParser:
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    return sub.choices["estimate"]
+
+
+def _field(cls, name) -> dataclasses.Field:
+    return next(f for f in dataclasses.fields(cls) if f.name == name)
+
+
+def _help_entries(parser) -> dict[str, str]:
+    """``--help`` as {flag: its help text, whitespace folded}."""
+    entries, flag = {}, None
+    for line in parser.format_help().splitlines():
+        if line.startswith("  -"):
+            invocation, *text = re.split(r"\s{2,}", line.strip(), maxsplit=1)
+            flag = invocation.split()[0].rstrip(",")
+            if flag == "-h":
+                flag = "--help"
+            entries[flag] = text[0] if text else ""
+        elif flag and line.startswith(" " * 10):
+            entries[flag] += " " + line.strip()
+        else:
+            flag = None
+    return {k: " ".join(v.split()) for k, v in entries.items()}
+
+
+def test_every_option_is_a_config_field_and_every_field_a_flag():
+    parser = _parser()
+    options = {s for a in parser._actions for s in a.option_strings if s.startswith("--")}
+    flags = {tc.flag_name(cls, n) for cls, names in CONFIGS for n in names}
+    bool_negations = {"--no-" + tc.flag_name(EstimateConfig, "flash_fit")[2:]}  # --no-flash-fit
+    assert options - NOT_CONFIG - bool_negations == flags
+    assert "--no-flash-fit" in options
+    # every field of EstimateConfig (but the nested RefineConfig) and FiveLightConfig is a flag
+    assert set(ESTIMATE_FLAGS) == {f.name for f in dataclasses.fields(EstimateConfig)} - {"refine"}
+    assert set(FIVELIGHT_FLAGS) == {f.name for f in dataclasses.fields(FiveLightConfig)}
+
+
+def test_help_and_parser_defaults_are_the_config_defaults():
+    """The acceptance line of issue 11: `ebr estimate --help` shows the defaults of EstimateConfig
+    (and RefineConfig, FiveLightConfig); the parser's defaults are the fields' defaults."""
+    parser = _parser()
+    args = parser.parse_args(["--out", "o"])
+    entries = _help_entries(parser)
+    checked = 0
+    for cls, names in CONFIGS:
+        for name in names:
+            f = _field(cls, name)
+            flag, dest = tc.flag_name(cls, name), tc.flag_dest(cls, name)
+            assert flag in entries, (cls.__name__, flag)
+            if f.default is dataclasses.MISSING:  # flash, out, lights: no default
+                assert parser.get_default(dest) is None, flag
+                assert not re.search(r"\[[^\]]*\]$", entries[flag]), (flag, entries[flag])
+                continue
+            assert parser.get_default(dest) == f.default, (cls.__name__, name)
+            assert getattr(args, dest) == f.default, (cls.__name__, name)
+            shown = re.search(r"\[([^\]]*)\]$", entries[flag])
+            assert shown, (flag, entries[flag])
+            expected = tc.default_text(f)
+            assert shown.group(1) in (expected, expected.strip('"')), (flag, shown.group(1), expected)
+            checked += 1
+    assert checked >= 18
+    # the values behind the brackets, spelled out for the main ones
+    assert "[45]" in entries["--fov"] and EstimateConfig.__dataclass_fields__["fov"].default == 45.0
+    assert "[2048]" in entries["--max-size"] and "[0.02]" in entries["--max-shift"]
+    assert "[0]" in entries["--refine-steps"] and "[sg]" in entries["--render-mode"]
+    assert "[true]" in entries["--flash-fit"]
+
+
+def test_configs_from_the_flags_are_the_config_defaults():
+    parser = _parser()
+    args = parser.parse_args(["--flash", "f.exr", "--out", "o"])
+    assert cmd.estimate_config(args) == EstimateConfig(flash="f.exr", out="o")
+    assert cmd.refine_config(args) == RefineConfig()
+    args = parser.parse_args(["--lights", "a", "b", "c", "d", "e", "--out", "o"])
+    assert cmd.fivelight_config(args) == FiveLightConfig(lights=("a", "b", "c", "d", "e"), out="o")
+    cmd.check_light_flags(args)  # the defaults of the flash/no-flash options count as not given
+
+
+def test_flags_set_the_fields():
+    parser = _parser()
+    argv = ["--flash", "f.exr", "--noflash", "n.exr", "--out", "o", "--fov", "50", "--max-shift", "0.1"]
+    argv += ["--flash-intensity", "3", "--max-size", "512", "--no-flash-fit", "--exposure-ratio", "2"]
+    argv += [
+        "--refine-steps",
+        "7",
+        "--refine-lr",
+        "0.05",
+        "--render-mode",
+        "quadrature",
+        "--refine-basis",
+        "2",
+    ]
+    argv += ["--refine-seconds", "9", "--refine-lobes", "--checkpoint", "m.pt", "--saturation-level", "0.9"]
+    cfg = cmd.estimate_config(parser.parse_args(argv))
+    assert cfg == EstimateConfig(
+        flash="f.exr",
+        noflash="n.exr",
+        out="o",
+        checkpoint="m.pt",
+        refine=RefineConfig(steps=7, lr=0.05, mode="quadrature", basis=2, seconds=9.0, lobes=True),
+        exposure_ratio=2.0,
+        fov=50.0,
+        max_shift=0.1,
+        saturation_level=0.9,
+        flash_intensity=3.0,
+        max_size=512,
+        flash_fit=False,
+    )
+    args = parser.parse_args(["--lights", "d", "--out", "o", "--flash-intensity", "40", "--max-size", "256"])
+    assert cmd.fivelight_config(args) == FiveLightConfig(
+        lights=("d",), out="o", light_intensity=40.0, max_size=256
+    )
+
+
+@pytest.mark.parametrize(
+    "extra, needle",
+    [
+        (["--fov", "wide"], "--fov 'wide': give a number"),
+        (["--fov", "5"], "--fov: must be in [10, 120], got 5.0"),
+        (["--max-size", "1.5"], "--max-size '1.5': give an integer"),
+        (["--flash-intensity", "-1"], "--flash-intensity: must be > 0"),
+        (["--flash-intensity", "inf"], "--flash-intensity: must be finite"),
+        (["--exposure-ratio", "0"], "--exposure-ratio: must be > 0"),
+        (["--render-mode", "path"], "--render-mode: got 'path'; use one of sg, quadrature"),
+        (["--refine-basis", "99"], "--refine-basis: must be in [0, 8]"),
+    ],
+)
+def test_bad_values_exit_2_naming_the_flag(tmp_path, capsys, extra, needle):
+    out = tmp_path / "out"
+    code = main(["estimate", "--flash", str(tmp_path / "f.exr"), "--out", str(out), *extra])
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert code == 2 and len(lines) == 1 and needle in lines[0], err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "extra", [["--refine-basis", "2"], ["--no-flash-fit"], ["--max-shift", "0.1"], ["--refine-lobes"]]
+)
+def test_flash_noflash_options_are_refused_with_lights(tmp_path, capsys, extra):
+    out = tmp_path / "out"
+    code = main(["estimate", "--lights", str(tmp_path), "--out", str(out), *extra])
+    err = capsys.readouterr().err
+    assert code == 2 and f"{extra[0]} does not apply to --lights" in err, err
+    # an option given at its default value is not refused
+    args = _parser().parse_args(["--lights", "d", "--out", "o", "--fov", "45", "--refine-steps", "0"])
+    cmd.check_light_flags(args)
+
+
+def test_required_out_is_an_argparse_error():
+    with pytest.raises(SystemExit) as exc:
+        _parser().parse_args(["--flash", "f.exr"])
+    assert exc.value.code == 2
