@@ -566,6 +566,21 @@ def upsample_bilinear(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     return (top * (1 - fy) + bottom * fy).astype(image.dtype)
 
 
+def box_mean(a: np.ndarray, r: int) -> np.ndarray:
+    """Mean over the (2r+1)² window around every pixel of an (H, W[, C]) array, edges replicated
+    (running sums, float64: O(1) per pixel whatever r)."""
+
+    def along(x, axis):
+        pad = [(r + 1, r) if i == axis else (0, 0) for i in range(x.ndim)]
+        c = np.cumsum(np.pad(x, pad, mode="edge"), axis=axis, dtype=np.float64)
+        n = x.shape[axis]
+        return (
+            np.take(c, np.arange(2 * r + 1, 2 * r + 1 + n), axis=axis) - np.take(c, np.arange(n), axis=axis)
+        ) / (2 * r + 1)
+
+    return along(along(a, 0), 1)
+
+
 def box3(image: np.ndarray) -> np.ndarray:
     """3×3 box filter of an (h, w, C) image, edges clamped."""
     p = np.pad(image, ((1, 1), (1, 1), (0, 0)), mode="edge")

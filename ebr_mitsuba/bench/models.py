@@ -415,14 +415,15 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
         log(f"[bench models] {name}")
         finish(name, evaluate(_recording(predict, store), data, limit=n, seed=0, progress=progress), store)
     shipped = load_predictor(None)
-    for name, fit in (("shipped model, ebr estimate --no-flash-fit", False),) + (
-        (("shipped model, ebr estimate", True),) if refine_cfg.steps <= 0 else ()
-    ):
-        store = []
+    plain = [("shipped model, ebr estimate --no-flash-fit", False)]
+    if refine_cfg.steps <= 0:  # else the refinement run below scores the default estimate as well
+        plain.append(("shipped model, ebr estimate", True))
+    for name, flash_fit in plain:
         log(f"[bench models] {name}")
-        one = estimate_predictor(shipped, data, RefineConfig(), flash_fit=fit)
+        estimate = estimate_predictor(shipped, data, RefineConfig(), flash_fit=flash_fit)
+        store: list = []
         res = evaluate(
-            _recording(lambda item, names, one=one: one(item, names)["estimate"], store),
+            _recording(lambda item, names, run=estimate: run(item, names)["estimate"], store),
             data,
             limit=n,
             seed=0,

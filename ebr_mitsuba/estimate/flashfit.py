@@ -58,7 +58,8 @@ import numpy as np
 import torch
 
 from ..errors import InputError
-from ..geometry import DEFAULT_FLASH_INTENSITY, NEAR_DISTANCE
+from ..geometry import DEFAULT_FLASH_INTENSITY, NEAR_DISTANCE, view_directions
+from ..imageio import box_mean
 from ..typedconfig import config, option
 
 __all__ = ["FlashFit", "FlashFitConfig", "fit_flash"]
@@ -134,30 +135,12 @@ class FlashFit:
         }
 
 
-def _view_geometry(height: int, width: int, camera) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """(cos θ, d², unit view vectors (H·W, 3)) of the co-located flash over the flat sample."""
-    from ..geometry import pixel_positions
-
-    p = torch.from_numpy(pixel_positions(height, width)).reshape(-1, 3)
-    to_cam = torch.tensor(camera, dtype=torch.float64) - p
-    d2 = (to_cam * to_cam).sum(-1)
-    v = to_cam / d2.sqrt()[:, None]
-    return v[:, 2].contiguous(), d2, v
-
-
 def _trimmed_mean(x: torch.Tensor, cut: float = TRIM) -> torch.Tensor:
     """Mean of the values between the ``cut`` and ``1 − cut`` quantiles (robust to the residue of
     the highlight and to outliers, unbiased for a symmetric or two-tone texture)."""
     lo, hi = torch.quantile(x, torch.tensor([cut, 1.0 - cut], dtype=x.dtype))
     inside = x[(x >= lo) & (x <= hi)]
     return inside.mean() if inside.numel() else x.mean()
-
-
-def _box_mean(x: torch.Tensor, k: int) -> torch.Tensor:
-    """Local mean over a k×k box (replicated borders); x (C, H, W)."""
-    pad = k // 2
-    padded = torch.nn.functional.pad(x[None], (pad, k - 1 - pad, pad, k - 1 - pad), mode="replicate")
-    return torch.nn.functional.avg_pool2d(padded, k, 1)[0]
 
 
 def fit_flash(
@@ -203,7 +186,10 @@ def fit_flash(
                 f"fit_flash: the saturation mask has {saturated.numel()} pixels; expected {h}x{w}"
             )
     f_only = (fl - nf).clamp_min(0.0) * to_radiance
-    cos, d2, v = _view_geometry(h, w, camera)
+    # co-located flash over the flat sample (z = 0): cos θ = v_z and d = camera_z / cos θ
+    v = torch.from_numpy(view_directions(h, w, camera)).reshape(-1, 3)
+    cos = v[:, 2].contiguous()
+    d2 = (float(camera[2]) / cos) ** 2
     shade = intensity * cos / (math.pi * d2)  # G(x): unit-albedo diffuse flash radiance, flat normal
     g = f_only.mean(-1) / shade
 
@@ -309,9 +295,9 @@ def fit_flash(
     ratio = (f_only - spec_radiance) / shade[:, None]
     level_rgb = torch.stack([_trimmed_mean(ratio[ok, c]) for c in range(3)]).clamp(1e-4, 1.0)
     # the texture pattern: the flash photo minus the lobe, over its local mean (grey)
-    img = (fl - spec_radiance / to_radiance).clamp_min(0.0).reshape(h, w, 3).permute(2, 0, 1)
-    k = max(3, int(round(opts.pattern * max(h, w))) | 1)
-    pattern = (img / _box_mean(img, k).clamp_min(1e-8)).mean(0)
+    img = (fl - spec_radiance / to_radiance).clamp_min(0.0).reshape(h, w, 3).numpy()
+    radius = max(3, int(round(opts.pattern * max(h, w))) | 1) // 2  # an odd box of ≈ pattern × the side
+    pattern = torch.from_numpy((img / np.maximum(box_mean(img, radius), 1e-8)).mean(-1))
     diffuse = (level_rgb[None, None, :] * pattern[..., None]).clamp(0.0, 1.0)
     return FlashFit(
         roughness=r_fit,

@@ -60,7 +60,7 @@ import numpy as np
 from ..colour import LUMINANCE
 from ..errors import InputError
 from ..geometry import NEAR_FOV
-from ..imageio import EXR_SUFFIXES, HDR_SUFFIXES, IMAGE_SUFFIXES, read_image, resize_area
+from ..imageio import EXR_SUFFIXES, HDR_SUFFIXES, IMAGE_SUFFIXES, box_mean, read_image, resize_area
 from .resample import MIN_INPUT_SIZE
 
 SHOT_NAMES = ("flash", "noflash", "far_flash", "far_noflash")
@@ -269,20 +269,6 @@ def _blur3(a: np.ndarray) -> np.ndarray:
     return (a[:, :-2] + 2 * a[:, 1:-1] + a[:, 2:]) / 4
 
 
-def _box(a: np.ndarray, r: int) -> np.ndarray:
-    """Mean over the (2r+1)² window around every pixel, edges replicated."""
-
-    def along(x, axis):
-        pad = [(r + 1, r) if i == axis else (0, 0) for i in range(x.ndim)]
-        c = np.cumsum(np.pad(x, pad, mode="edge"), axis=axis, dtype=np.float64)
-        n = x.shape[axis]
-        return (
-            np.take(c, np.arange(2 * r + 1, 2 * r + 1 + n), axis=axis) - np.take(c, np.arange(n), axis=axis)
-        ) / (2 * r + 1)
-
-    return along(along(a, 0), 1)
-
-
 _LAPLACE = ((1, -2, 1), (-2, 4, -2), (1, -2, 1))  # its response to white noise σ has std 6σ
 _BLUR_NOISE = 70.0 / 256.0  # std factor of white noise through _blur3 twice (2-D)
 
@@ -303,7 +289,7 @@ def texture_to_noise(log_lum: np.ndarray) -> float:
     lap = sum(k * p[i : i + h, j : j + w] for i, row in enumerate(_LAPLACE) for j, k in enumerate(row))
     noise = float(np.median(np.abs(lap))) / 0.6745 / 6.0
     smooth = _blur3(_blur3(log_lum))
-    detail = float((smooth - _box(smooth, max(2, min(h, w) // 16))).std())
+    detail = float((smooth - box_mean(smooth, max(2, min(h, w) // 16))).std())
     ratio = detail / max(_BLUR_NOISE * noise, 1e-12)
     return float(math.sqrt(max(ratio * ratio - 1.0, 0.0)))
 

@@ -505,7 +505,9 @@ def run_estimate(
         t0 = time.perf_counter()
         log("fitting the flash profile: roughness, specular and the albedo level")
         flash_img = work_inputs.images["flash"]
-        noflash_img = work_inputs.images.get("noflash", np.zeros_like(flash_img))
+        noflash_img = work_inputs.images.get("noflash")
+        if noflash_img is None:  # a flash-only capture: the flash shot is the flash-only image
+            noflash_img = np.zeros_like(flash_img)
         clip = work_inputs.clip_level if work_inputs.clip_level is not None else math.inf
         flash_fit = fit_flash(
             flash_img,
