@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import os
 import platform
+import time
 from pathlib import Path
+
+QUIET_CORES = 0.25  # other processes using less than this many cores on average: a quiet machine
 
 # ``../shared/data`` next to the checkout; ``$EBR_DATA_DIR`` overrides it.
 DEFAULT_DATA_DIR = Path(__file__).resolve().parents[2].parent / "shared" / "data"
@@ -21,6 +24,56 @@ def machine() -> str:
 
     d = describe()
     return (
-        f"{platform.processor() or platform.machine()}, {os.cpu_count()} logical cores (shared), "
+        f"{platform.processor() or platform.machine()}, {os.cpu_count()} logical cores, "
         f"{d['variant']}, Mitsuba {d['mitsuba']}, Dr.Jit {d['drjit']}, LLVM {d.get('llvm', '-')}"
+    )
+
+
+def _busy_seconds() -> float | None:
+    """CPU seconds all processes have spent busy since boot (``/proc/stat``), None off Linux."""
+    try:
+        with open("/proc/stat") as f:
+            fields = [int(x) for x in f.readline().split()[1:9]]
+    except (OSError, ValueError):
+        return None
+    user, nice, system, _idle, _iowait, irq, softirq, steal = fields
+    return (user + nice + system + irq + softirq + steal) / os.sysconf("SC_CLK_TCK")
+
+
+def _own_seconds() -> float:
+    """CPU seconds of this process and of its children that have been waited for."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
+def other_cores(busy: float, own: float, wall: float) -> float:
+    """Cores that other processes kept busy on average: (all busy CPU time − ours) / wall time."""
+    return max(0.0, busy - own) / wall if wall > 0 else 0.0
+
+
+class OtherLoad:
+    """How much of the machine other processes used while a benchmark ran: the busy CPU time of
+    ``/proc/stat`` minus this process's own (threads and waited-for children included). Unlike the
+    load average, it does not count the benchmark's own runs."""
+
+    def __init__(self):
+        self._busy, self._own, self._wall = _busy_seconds(), _own_seconds(), time.perf_counter()
+
+    def cores(self) -> float | None:
+        """Average cores used by other processes since construction (None off Linux)."""
+        busy = _busy_seconds()
+        if busy is None or self._busy is None:
+            return None
+        return other_cores(busy - self._busy, _own_seconds() - self._own, time.perf_counter() - self._wall)
+
+
+def load_sentence(cores: float | None) -> str:
+    """The page's sentence about other processes' load during the measurements."""
+    if cores is None:
+        return "Other processes' load was not measured (no /proc/stat)."
+    if cores < QUIET_CORES:
+        return f"Other processes used {cores:.2f} cores on average during the runs: a quiet machine."
+    return (
+        f"Other processes used {cores:.2f} cores on average during the runs: the machine was shared, "
+        "rerun on a quiet one for the documented numbers."
     )
