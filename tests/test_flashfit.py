@@ -137,3 +137,38 @@ def test_a_lobe_cannot_hide_inside_the_central_ring(statistic):
     fit = fit_flash(flash, noflash, to_radiance=1 / exposure, clip_level=float("inf"), options=opts)
     assert not fit.metal
     assert abs(fit.roughness - float(np.mean(m.roughness))) <= 0.1, fit.roughness
+
+
+def test_network_diffuse_is_scaled_to_the_level_and_blended():
+    """The network's map enters at the fitted level (a network map off by a factor of 3 is
+    rescaled), weighted by ``weight``; a metal keeps no diffuse; a wrong size is refused."""
+    yy, xx = np.mgrid[0:RES, 0:RES]
+    checker = ((yy // 8 + xx // 8) % 2).astype(np.float32)
+    albedo = np.stack([0.2 + 0.3 * checker] * 3, -1)
+    flash, noflash, exposure = _capture(albedo, (0.04,) * 3, 0.5, noise=0.002)
+    fit = fit_flash(flash, noflash, to_radiance=1 / exposure)
+    network = 3.0 * albedo
+    only_net = fit.with_network_diffuse(network, 1.0).diffuse
+    np.testing.assert_allclose(only_net.reshape(-1, 3).mean(0), fit.level, rtol=1e-3)
+    np.testing.assert_array_equal(fit.with_network_diffuse(network, 0.0).diffuse, fit.diffuse)
+    half = fit.with_network_diffuse(network, 0.5).diffuse
+    np.testing.assert_allclose(half, 0.5 * fit.diffuse + 0.5 * only_net, atol=1e-6)
+    err = lambda d: float(np.sqrt(np.mean((d - albedo) ** 2)))  # noqa: E731
+    assert err(half) < err(fit.diffuse)  # the clean network texture lowers the photo's noise
+    with pytest.raises(InputError, match="network's diffuse map"):
+        fit.with_network_diffuse(network[:-1], 0.5)
+    f0 = (0.9, 0.6, 0.3)
+    flash, noflash, exposure = _capture(_uniform((0.0, 0.0, 0.0)), f0, 0.35, ambient=0.0)
+    metal = fit_flash(flash, noflash, to_radiance=1 / exposure)
+    assert metal.metal and float(np.abs(metal.with_network_diffuse(network, 0.5).diffuse).max()) == 0.0
+
+
+def test_large_photos_are_fitted_on_an_area_averaged_copy():
+    """fit_size below the photo: the profile runs on a 2× area-averaged copy and finds the same
+    roughness; the maps keep the photo's size."""
+    flash, noflash, exposure = _capture(_uniform((0.3, 0.25, 0.2)), (0.04,) * 3, 0.4)
+    full = fit_flash(flash, noflash, to_radiance=1 / exposure)
+    half = fit_flash(flash, noflash, to_radiance=1 / exposure, options=FlashFitConfig(fit_size=64))
+    assert abs(half.roughness - full.roughness) <= 0.02
+    assert half.diffuse.shape == full.diffuse.shape == (RES, RES, 3)
+    np.testing.assert_allclose(half.level, full.level, rtol=0.02)

@@ -500,7 +500,7 @@ def run_estimate(
 
     flash_fit = None
     if cfg.flash_fit:
-        from .flashfit import fit_flash
+        from .flashfit import FlashFitConfig, fit_flash
 
         t0 = time.perf_counter()
         log("fitting the flash profile: roughness, specular and the albedo level")
@@ -516,7 +516,9 @@ def run_estimate(
             camera=(0.0, 0.0, near_distance(inputs.fov)),
             saturated=work_inputs.saturated,
             clip_level=clip,
+            options=(fit_options := FlashFitConfig()),
         )
+        flash_fit = flash_fit.with_network_diffuse(np.asarray(maps.diffuse), fit_options.network_weight)
         maps = flash_fit.maps(maps.normal, "ebr estimate (network normals, flash fit)")
         stage("flash fit", t0)
 
