@@ -93,6 +93,7 @@ def config_sections() -> list[tuple[str, str, type, object]]:
     order."""
     from .data import config as data
     from .estimate.fivelight import FiveLightConfig
+    from .estimate.flashfit import FlashFitConfig
     from .estimate.pipeline import EstimateConfig
     from .estimate.refine import RefineConfig
     from .exemplar.select import SELECT_PRESETS, SelectConfig
@@ -114,6 +115,7 @@ def config_sections() -> list[tuple[str, str, type, object]]:
         ("`ebr extract-sg` (ExtractConfig, preset `default`)", "", ExtractConfig, None),
         ("`ebr select-exemplars` (SelectConfig, preset `default`)", "", SelectConfig, None),
         ("`ebr estimate` (EstimateConfig)", "", EstimateConfig, None),
+        ("the flash-profile fit (FlashFitConfig)", "", FlashFitConfig, None),
         ("test-time refinement (RefineConfig)", "", RefineConfig, None),
         ("`ebr estimate --lights` (FiveLightConfig)", "", FiveLightConfig, None),
         ("`ebr insert` (InsertConfig)", "", InsertConfig, None),
