@@ -70,30 +70,38 @@ from .scene import INTEGRATORS, PATH_MAX_DEPTH, shot_scene_dict, svbrdf_bsdf_dic
 from .sgenv import SGEnvironment
 from .sources import EnvSource, MaterialSource, parse_env, parse_material
 from .svbrdf import SVBRDF
+from .typedconfig import config, option
 from .variant import describe, ensure_variant
 
 CAPTURE_FORMAT = "ebr-capture/1"
-DEFAULT_SPP = 64
-DEFAULT_RES = 256
-DEFAULT_SEED = 0
 DEFAULT_INTEGRATOR = "direct"
 MAX_RES = 8192
+
+
+@config(error=InputError)
+class CaptureConfig:
+    """How :func:`capture` renders a capture (the options of ``ebr capture``; a bad value is an
+    :class:`~ebr_mitsuba.errors.InputError`)."""
+
+    spp: int = option(64, "samples per pixel", minimum=1)
+    res: int = option(256, "image and map resolution, square", minimum=1, maximum=MAX_RES)
+    seed: int = option(0, "capture seed (the per-shot seeds derive from it)", minimum=0)
+    integrator: str = option(
+        DEFAULT_INTEGRATOR,
+        "Mitsuba integrator (direct: the complete transport of the plane; path: max_depth 2)",
+        choices=INTEGRATORS,
+        metavar="NAME",
+    )
+    env_scale: float = option(1.0, "environment radiance multiplier", minimum=0)
+
+
+#: The fields ``ebr capture`` sets from its flags (:func:`ebr_mitsuba.typedconfig.add_flags`).
+CAPTURE_FLAGS = ("spp", "res", "seed", "integrator", "env_scale")
 
 
 def shot_seed(seed: int, index: int) -> int:
     """The sampler seed of shot ``index`` of a capture with seed ``seed`` (32-bit, deterministic)."""
     return int(np.random.SeedSequence([int(seed), int(index)]).generate_state(1)[0])
-
-
-def _check_render_args(spp: int, res: int, seed: int, integrator: str) -> None:
-    if int(spp) < 1:
-        raise InputError(f"spp must be >= 1 (got {spp})")
-    if not 1 <= int(res) <= MAX_RES:
-        raise InputError(f"resolution must be in [1, {MAX_RES}] (got {res})")
-    if int(seed) < 0:
-        raise InputError(f"seed must be >= 0 (got {seed})")
-    if integrator not in INTEGRATORS:
-        raise InputError(f"unknown integrator {integrator!r}; use one of {', '.join(INTEGRATORS)}")
 
 
 def _as_material(material) -> tuple[MaterialSource | None, str]:
@@ -168,24 +176,26 @@ def capture(
     env,
     setup: str,
     out_dir,
-    spp: int = DEFAULT_SPP,
-    res: int = DEFAULT_RES,
-    seed: int = DEFAULT_SEED,
-    integrator: str = DEFAULT_INTEGRATOR,
-    env_scale: float = 1.0,
+    config: CaptureConfig | None = None,
+    *,
     progress: bool = True,
+    **options,
 ) -> dict:
     """Render a capture of ``material`` under ``env`` with ``setup`` into ``out_dir``.
 
     ``material``: a material spec string, :class:`MaterialSource` or :class:`SVBRDF` (its size
-    must equal ``res``); ``env``: a spec string, :class:`EnvSource`, :class:`SGEnvironment` or
-    None (dark); ``setup``: one of :data:`ebr_mitsuba.geometry.SETUPS`. Returns the content of
-    ``capture.json``. Everything is validated and the material loaded before rendering; output is
-    atomic (an existing capture directory at ``out_dir`` is replaced, anything else is refused).
+    must equal the resolution); ``env``: a spec string, :class:`EnvSource`, :class:`SGEnvironment`
+    or None (dark); ``setup``: one of :data:`ebr_mitsuba.geometry.SETUPS`; ``config``: a
+    :class:`CaptureConfig` (default: its defaults), with ``options`` (its fields, ``spp=4,
+    res=8``) set over it. Returns the content of ``capture.json``. Everything is validated and
+    the material loaded before rendering; output is atomic (an existing capture directory at
+    ``out_dir`` is replaced, anything else is refused).
     """
     t0 = time.perf_counter()
-    res, spp, seed = int(res), int(spp), int(seed)
-    _check_render_args(spp, res, seed, integrator)
+    if config is not None and not isinstance(config, CaptureConfig):
+        raise TypeError(f"capture: config must be a CaptureConfig, got {config!r}")
+    cfg = dataclasses.replace(config or CaptureConfig(), **options)
+    res, spp, seed, integrator, env_scale = cfg.res, cfg.spp, cfg.seed, cfg.integrator, cfg.env_scale
     shots = setup_shots(setup)
     out_dir = Path(out_dir)
     _check_out_dir(out_dir)
@@ -273,4 +283,13 @@ def capture(
     return meta
 
 
-__all__ = ["CAPTURE_FORMAT", "SETUPS", "capture", "render_shot", "render_flash_only", "shot_seed"]
+__all__ = [
+    "CAPTURE_FLAGS",
+    "CAPTURE_FORMAT",
+    "SETUPS",
+    "CaptureConfig",
+    "capture",
+    "render_shot",
+    "render_flash_only",
+    "shot_seed",
+]

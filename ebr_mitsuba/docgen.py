@@ -91,17 +91,23 @@ def plugins_page() -> str:
 def config_sections() -> list[tuple[str, str, type, object]]:
     """(title, key prefix, config class, preset or None) of every documented config, in pipeline
     order."""
+    from .capture import CaptureConfig
+    from .commands.demo import DemoConfig
+    from .commands.render import RenderConfig
     from .data import config as data
+    from .envfit import EnvFitConfig
     from .estimate.fivelight import FiveLightConfig
     from .estimate.flashfit import FlashFitConfig
     from .estimate.pipeline import EstimateConfig
     from .estimate.refine import RefineConfig
+    from .exemplar.images import ExemplarsConfig
     from .exemplar.select import SELECT_PRESETS, SelectConfig
     from .extract.config import EXTRACT_PRESETS, ExtractConfig
     from .insert import InsertConfig
     from .nets import CascadeConfig, DualLossConfig, LightingNetConfig, NAFNetSize
     from .nets.mair_config import MAIRConfig, MAIRSize, UNetSize
     from .train import config as train
+    from .validate import ValidateConfig
 
     out = [(f"`ebr generate` [{name}]", f"{name}.", cls, None) for name, cls in data.SECTIONS.items()]
     out += [
@@ -112,6 +118,9 @@ def config_sections() -> list[tuple[str, str, type, object]]:
         for t, c in data.ENVIRONMENT_TYPES.items()
     ]
     out += [
+        ("`ebr capture` (CaptureConfig)", "", CaptureConfig, None),
+        ("`ebr fit-env` (EnvFitConfig)", "", EnvFitConfig, None),
+        ("`ebr exemplars` (ExemplarsConfig)", "", ExemplarsConfig, None),
         ("`ebr extract-sg` (ExtractConfig, preset `default`)", "", ExtractConfig, None),
         ("`ebr select-exemplars` (SelectConfig, preset `default`)", "", SelectConfig, None),
         ("`ebr estimate` (EstimateConfig)", "", EstimateConfig, None),
@@ -119,6 +128,9 @@ def config_sections() -> list[tuple[str, str, type, object]]:
         ("test-time refinement (RefineConfig)", "", RefineConfig, None),
         ("`ebr estimate --lights` (FiveLightConfig)", "", FiveLightConfig, None),
         ("`ebr insert` (InsertConfig)", "", InsertConfig, None),
+        ("`ebr demo` (DemoConfig)", "", DemoConfig, None),
+        ("`ebr render` (RenderConfig)", "", RenderConfig, None),
+        ("`ebr validate` (ValidateConfig)", "", ValidateConfig, None),
     ]
     out += [(f"`ebr train` [{name}]", f"{name}.", cls, None) for name, cls in train.TABLES.items()]
     out += [

@@ -23,8 +23,8 @@ sphere with a small amplitude. Deterministic: no random numbers.
 Resampling (:func:`resample_equirect`): the map is area-averaged (radiance weighted by solid
 angle) to ``height × 2·height`` cells; each cell's direction is the centre of its footprint in the
 source map's parameterisation (rows align-corners, :mod:`ebr_mitsuba.envmap`), its weight
-the footprint's exact solid angle. The fit runs at ``height`` (default 64), the error is reported
-at ``eval_height`` (default 128):
+the footprint's exact solid angle. The fit runs at ``height`` rows, the error is reported at
+``eval_height`` rows (the settings and their defaults: :class:`EnvFitConfig`):
 
 ==============  ==================================================================================
 error           definition (solid-angle weighted, over RGB)
@@ -45,6 +45,7 @@ duration): the scatter-add order is then fixed and the same map gives a bit-iden
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -58,14 +59,26 @@ from .envmap import EquirectMap, equirect_solid_angles, map_to_world, uv_to_dire
 from .errors import ConfigError, InputError
 from .imageio import resize_area
 from .sgenv import SGEnvironment
+from .typedconfig import config, option
 
-DEFAULT_LOBES = 32
-DEFAULT_ITERATIONS = 400
-DEFAULT_HEIGHT = 64
-DEFAULT_EVAL_HEIGHT = 128
-DEFAULT_LR = 0.03
-DEFAULT_LOG_WEIGHT = 0.1
 MAX_LOBES = 512
+
+
+@config
+class EnvFitConfig:
+    """The settings of :func:`fit_sg` (the options of ``ebr fit-env``; a bad value given in code
+    is a :class:`~ebr_mitsuba.errors.ConfigError`)."""
+
+    lobes: int = option(32, "SG lobes", minimum=1, maximum=MAX_LOBES)
+    iterations: int = option(400, "Adam iterations", minimum=0, flag="--iters")
+    height: int = option(64, "rows of the resampled map the fit runs on", minimum=2)
+    lr: float = option(0.03, "Adam learning rate", above=0)
+    log_weight: float = option(0.1, "weight β of the log-space term", minimum=0)
+    eval_height: int = option(128, "rows of the resampled map the error is reported at", minimum=2)
+
+
+#: The fields ``ebr fit-env`` sets from its flags (:func:`ebr_mitsuba.typedconfig.add_flags`).
+ENVFIT_FLAGS = ("lobes", "iterations", "height", "lr", "log_weight")
 
 
 @dataclass(frozen=True)
@@ -247,35 +260,19 @@ class FitResult:
         }
 
 
-def _check_settings(lobes, iterations, height, lr, log_weight) -> None:
-    if isinstance(lobes, bool) or not isinstance(lobes, (int, np.integer)) or not 1 <= lobes <= MAX_LOBES:
-        raise ConfigError(f"--lobes must be an integer in [1, {MAX_LOBES}] (got {lobes!r})")
-    if isinstance(iterations, bool) or not isinstance(iterations, (int, np.integer)) or iterations < 0:
-        raise ConfigError(f"--iters must be an integer >= 0 (got {iterations!r})")
-    if isinstance(height, bool) or not isinstance(height, (int, np.integer)) or height < 2:
-        raise ConfigError(f"--height must be an integer >= 2 (got {height!r})")
-    if not (math.isfinite(lr) and lr > 0):
-        raise ConfigError(f"--lr must be > 0 (got {lr!r})")
-    if not (math.isfinite(log_weight) and log_weight >= 0):
-        raise ConfigError(f"--log-weight must be >= 0 (got {log_weight!r})")
-
-
-def fit_sg(
-    emap: EquirectMap,
-    lobes: int = DEFAULT_LOBES,
-    iterations: int = DEFAULT_ITERATIONS,
-    height: int = DEFAULT_HEIGHT,
-    lr: float = DEFAULT_LR,
-    log_weight: float = DEFAULT_LOG_WEIGHT,
-    eval_height: int = DEFAULT_EVAL_HEIGHT,
-    progress=None,
-) -> FitResult:
-    """Fit ``lobes`` SGs to ``emap`` (module docstring); returns a :class:`FitResult`.
+def fit_sg(emap: EquirectMap, config: EnvFitConfig | None = None, *, progress=None, **options) -> FitResult:
+    """Fit SG lobes to ``emap`` (module docstring) with the settings of ``config`` (default:
+    :class:`EnvFitConfig`'s), ``options`` (its fields, ``lobes=8``) set over it; returns a
+    :class:`FitResult`.
 
     ``progress``: optional callable ``(iteration, loss)`` called every 50 iterations.
     Deterministic (single-threaded Dr.Jit for the duration of the call).
     """
-    _check_settings(lobes, iterations, height, lr, log_weight)
+    if config is not None and not isinstance(config, EnvFitConfig):
+        raise TypeError(f"fit_sg: config must be an EnvFitConfig, got {config!r}")
+    cfg = dataclasses.replace(config or EnvFitConfig(), **options)
+    lobes, iterations, height, lr, log_weight = cfg.lobes, cfg.iterations, cfg.height, cfg.lr, cfg.log_weight
+    eval_height = cfg.eval_height
     import drjit as dr
 
     from .variant import ensure_variant

@@ -26,6 +26,7 @@ plugin-vs-built-in; per mode for the fast renderer, stated in validation.toml).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -37,11 +38,31 @@ import tomllib
 
 from .errors import ConfigError, InputError
 from .metrics import rel_rmse
+from .typedconfig import config, option
 
 VIEW_DISTANCE = 2.14
 DEFAULT_SPP = 131072
 DEFAULT_BUDGETS = {"fast-sg": 0.05, "fast-quadrature": 0.02, "builtin-bsdf": 0.01, "builtin-emitter": 0.01}
 CHECKS = tuple(DEFAULT_BUDGETS)
+
+
+@config(error=InputError)
+class ValidateConfig:
+    """How :func:`run_case` traces its references (the options of ``ebr validate``; a bad value is
+    an :class:`~ebr_mitsuba.errors.InputError`)."""
+
+    spp: int = option(DEFAULT_SPP, "samples per point of the path-traced references", minimum=1)
+    seed: int = option(0, "seed of the references", minimum=0)
+
+
+#: The fields ``ebr validate`` sets from its flags (:func:`ebr_mitsuba.typedconfig.add_flags`).
+VALIDATE_FLAGS = ("spp", "seed")
+
+
+def _validate_config(config, options) -> ValidateConfig:
+    if config is not None and not isinstance(config, ValidateConfig):
+        raise TypeError(f"config must be a ValidateConfig, got {config!r}")
+    return dataclasses.replace(config or ValidateConfig(), **options)
 
 
 @dataclass(frozen=True)
@@ -325,13 +346,17 @@ def _row(name, reference, a, b_est, noise, budget, seconds, extra=None) -> dict:
     return row
 
 
-def run_case(case: Case, spp: int = DEFAULT_SPP, seed: int = 0) -> list[dict]:
-    """Run every check of ``case``; one result row per check."""
+def run_case(case: Case, config: ValidateConfig | None = None, **options) -> list[dict]:
+    """Run every check of ``case`` with the references of ``config`` (default:
+    :class:`ValidateConfig`'s), ``options`` (its fields, ``spp=1024``) set over it; one result row
+    per check."""
     import mitsuba as mi
 
     from .pathref import trace
     from .scene import load_scene
 
+    cfg = _validate_config(config, options)
+    spp, seed = cfg.spp, cfg.seed
     rows = []
     t0 = time.perf_counter()
     scene_obj = load_scene(case.scene, **case.params)
@@ -388,11 +413,13 @@ def run_case(case: Case, spp: int = DEFAULT_SPP, seed: int = 0) -> list[dict]:
     return rows
 
 
-def validate(cases: list[Case], spp: int = DEFAULT_SPP, progress=None) -> dict:
-    """Run ``cases``; returns ``{"passed": bool, "cases": [rows]}``."""
+def validate(cases: list[Case], config: ValidateConfig | None = None, progress=None, **options) -> dict:
+    """Run ``cases`` (:func:`run_case` with ``config`` and ``options``); returns ``{"passed": bool,
+    "cases": [rows]}``."""
+    cfg = _validate_config(config, options)
     rows = []
     for case in cases:
-        rows.extend(run_case(case, spp=spp))
+        rows.extend(run_case(case, cfg))
         if progress is not None:
             progress(case, rows)
     return {"passed": all(r["passed"] for r in rows), "cases": rows}

@@ -9,11 +9,16 @@ import dataclasses
 import pytest
 
 from ebr_mitsuba import typedconfig as tc
+from ebr_mitsuba.capture import CaptureConfig
+from ebr_mitsuba.commands.demo import DemoConfig
+from ebr_mitsuba.commands.render import RenderConfig
 from ebr_mitsuba.data import config as data_config
+from ebr_mitsuba.envfit import EnvFitConfig
 from ebr_mitsuba.errors import ConfigError, InputError
 from ebr_mitsuba.estimate.fivelight import FiveLightConfig
 from ebr_mitsuba.estimate.pipeline import EstimateConfig
 from ebr_mitsuba.estimate.refine import REFINE_FLAGS, RefineConfig
+from ebr_mitsuba.exemplar.images import ExemplarsConfig
 from ebr_mitsuba.exemplar.select import SELECT_PRESETS, SelectConfig
 from ebr_mitsuba.extract.config import EXTRACT_PRESETS, ExtractConfig
 from ebr_mitsuba.insert import INSERT_FLAGS, InsertConfig
@@ -21,6 +26,7 @@ from ebr_mitsuba.nets import CascadeConfig, DualLossConfig, LightingNetConfig, N
 from ebr_mitsuba.nets.mair_config import MAIRConfig, MAIRSize, UNetSize
 from ebr_mitsuba.nets.nafnet import SIZE_PRESETS, SMALL_SIZE
 from ebr_mitsuba.train import config as train_config
+from ebr_mitsuba.validate import ValidateConfig
 
 MIGRATED = [
     *data_config.SECTIONS.values(),
@@ -38,6 +44,13 @@ MIGRATED = [
     MAIRConfig,
     MAIRSize,
     UNetSize,
+    # the command configs of tests/test_cli_configs.py
+    CaptureConfig,
+    EnvFitConfig,
+    ExemplarsConfig,
+    RenderConfig,
+    ValidateConfig,
+    DemoConfig,
 ]
 # configs with required fields (no defaults): their flags are compared in tests/test_estimate_cli.py
 WITH_REQUIRED = [EstimateConfig, FiveLightConfig]

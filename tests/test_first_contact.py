@@ -311,7 +311,7 @@ def test_validate_docs_state_the_default_spp():
     ]
     assert stated, "docs/validate.md should state the default spp of a plain `ebr validate`"
     assert set(stated) == {DEFAULT_SPP}, (stated, DEFAULT_SPP)
-    assert f"(default {DEFAULT_SPP})" in " ".join(_validate_help().split())
+    assert f"[{DEFAULT_SPP}]" in " ".join(_validate_help().split())  # the generated help's default
 
 
 def _validate_help() -> str:

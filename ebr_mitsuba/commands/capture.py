@@ -10,6 +10,10 @@ view{a}{b}_flash), the ground-truth maps in DIR/maps, env.json (SG environments)
 capture.json (cameras, lights, intensities, spp, seeds, variant and versions). The directory is
 written atomically; an existing capture directory at DIR is replaced, anything else is refused.
 ``--json`` prints {"out", "setup", "files", "seconds", "spp", "resolution", "seed", "variant"}.
+
+The options ``--spp`` … ``--env-scale`` are the fields of :class:`ebr_mitsuba.capture.CaptureConfig`;
+their flags, defaults and help are generated from its field metadata (see ``--help``); a bad value
+is one line naming the flag (exit 2).
 """
 
 from __future__ import annotations
@@ -17,9 +21,9 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from ..capture import DEFAULT_INTEGRATOR, DEFAULT_RES, DEFAULT_SEED, DEFAULT_SPP
+from ..capture import CAPTURE_FLAGS, CaptureConfig
 from ..geometry import SETUPS
-from ..scene import INTEGRATORS
+from ..typedconfig import add_flags, from_args
 from ._common import emit_json, say
 
 NAME = "capture"
@@ -36,51 +40,22 @@ def add_arguments(parser) -> None:
     # Validated by geometry.setup_shots (one-line error) rather than argparse choices.
     parser.add_argument("--setup", required=True, metavar="SETUP", help=f"one of {', '.join(SETUPS)}")
     parser.add_argument("--out", required=True, metavar="DIR", help="output capture directory")
-    parser.add_argument(
-        "--spp", type=int, default=DEFAULT_SPP, help=f"samples per pixel (default {DEFAULT_SPP})"
-    )
-    parser.add_argument(
-        "--res",
-        type=int,
-        default=DEFAULT_RES,
-        help=f"image and map resolution, square (default {DEFAULT_RES})",
-    )
-    parser.add_argument(
-        "--seed", type=int, default=DEFAULT_SEED, help=f"render seed (default {DEFAULT_SEED})"
-    )
-    parser.add_argument(
-        "--integrator",
-        default=DEFAULT_INTEGRATOR,
-        metavar="NAME",
-        help=f"one of {', '.join(INTEGRATORS)} (default {DEFAULT_INTEGRATOR})",
-    )
-    parser.add_argument(
-        "--env-scale", type=float, default=1.0, help="environment radiance multiplier (default 1)"
-    )
+    # The CaptureConfig options: values read as text and checked by from_args (one line, exit 2).
+    add_flags(parser, CaptureConfig, CAPTURE_FLAGS)
     parser.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
 
 
+def config_from_args(args) -> CaptureConfig:
+    """The :class:`~ebr_mitsuba.capture.CaptureConfig` of the parsed options (InputError if bad)."""
+    return from_args(CaptureConfig, args, CAPTURE_FLAGS)
+
+
 def run(args) -> int:
-    import math
-
     from ..capture import capture
-    from ..errors import InputError
 
-    if not (math.isfinite(args.env_scale) and args.env_scale >= 0):
-        raise InputError(f"--env-scale must be a finite value >= 0 (got {args.env_scale})")
+    cfg = config_from_args(args)
     t0 = time.perf_counter()
-    meta = capture(
-        args.material,
-        args.env,
-        args.setup,
-        Path(args.out),
-        spp=args.spp,
-        res=args.res,
-        seed=args.seed,
-        integrator=args.integrator,
-        env_scale=args.env_scale,
-        progress=True,
-    )
+    meta = capture(args.material, args.env, args.setup, Path(args.out), cfg, progress=True)
     seconds = time.perf_counter() - t0
     files = [s["file"] for s in meta["shots"]] + ["maps", "capture.json"]
     if meta["env"] and meta["env"].get("file"):
@@ -100,7 +75,7 @@ def run(args) -> int:
         )
     else:
         say(
-            f"wrote {args.out}: {len(meta['shots'])} shots at {args.res}x{args.res}, {args.spp} spp "
+            f"wrote {args.out}: {len(meta['shots'])} shots at {cfg.res}x{cfg.res}, {cfg.spp} spp "
             f"({seconds:.1f} s)"
         )
     return 0

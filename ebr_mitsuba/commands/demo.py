@@ -13,8 +13,9 @@
 4. writes DIR/demo.json and DIR/demo.png (photos, re-render, maps, lighting in one strip) and
    prints the errors and where the report is.
 
-Defaults (chosen to finish well under 10 minutes on a 2-core CPU): --res = the model grid,
---spp 64, --refine-steps 100, --out ebr-demo. An existing DIR must be an earlier demo.
+The options are the fields of :class:`DemoConfig` (flags, defaults and help generated from its
+metadata; the defaults are chosen to finish well under 10 minutes on a 2-core CPU); a bad value is
+one line naming the flag (exit 2). An existing DIR must be an earlier demo.
 ``--docs DIR`` also writes DIR/demo.png and DIR/demo_result.md (the README's picture and the
 measured table of docs/demo.md; ``make docs`` runs it).
 ``--json`` prints {"out", "report", "map_error", "lighting_error", "rerender_error", "timings"}.
@@ -28,37 +29,51 @@ from pathlib import Path
 
 import numpy as np
 
+from ..capture import MAX_RES
 from ..errors import InputError
 from ..geometry import DEFAULT_EXEMPLAR_ROUGHNESS
+from ..typedconfig import add_flags, config, from_args, option
 from ._common import emit_json, progress, say
 
 NAME = "demo"
 HELP = "run the whole pipeline on the bundled default scene and compare with the truth"
 
-DEFAULT_OUT = "ebr-demo"
-DEFAULT_SPP = 64
-DEFAULT_REFINE_STEPS = 100
 CHECKER_COLORS = ((0.60, 0.42, 0.25), (0.12, 0.09, 0.07))
 CHECKER_SQUARES = 8
 SPECULAR, ROUGHNESS = 0.04, 0.35
 EXEMPLAR_ROUGHNESS = DEFAULT_EXEMPLAR_ROUGHNESS
 
 
+@config(error=InputError, cli=True)
+class DemoConfig:
+    """The options of ``ebr demo`` (a bad value is an :class:`~ebr_mitsuba.errors.InputError`
+    naming the flag)."""
+
+    out: str = option("ebr-demo", "output directory (new, or an earlier demo's)", metavar="DIR")
+    res: int | None = option(
+        None, "capture resolution, square", minimum=1, maximum=MAX_RES, shown="the model grid"
+    )
+    spp: int = option(64, "Mitsuba samples per pixel of the capture", minimum=1)
+    refine_steps: int = option(100, "test-time refinement steps (0: none)", minimum=0, flag="--refine-steps")
+    checkpoint: str | None = option(None, "model checkpoint", metavar="C", shown="the shipped model")
+    docs: str | None = option(
+        None, "also write DIR/demo.png and DIR/demo_result.md", metavar="DIR", shown="none"
+    )
+
+
+#: The fields ``ebr demo`` sets from its flags (:func:`ebr_mitsuba.typedconfig.add_flags`).
+DEMO_FLAGS = ("out", "res", "spp", "refine_steps", "checkpoint", "docs")
+
+
 def add_arguments(parser) -> None:
-    parser.add_argument("--out", default=DEFAULT_OUT, metavar="DIR", help=f"output directory [{DEFAULT_OUT}]")
-    parser.add_argument("--res", type=int, default=None, help="capture resolution [the model grid]")
-    parser.add_argument(
-        "--spp", type=int, default=DEFAULT_SPP, help=f"Mitsuba samples per pixel [{DEFAULT_SPP}]"
-    )
-    parser.add_argument(
-        "--refine-steps",
-        type=int,
-        default=DEFAULT_REFINE_STEPS,
-        help=f"test-time refinement steps [{DEFAULT_REFINE_STEPS}]",
-    )
-    parser.add_argument("--checkpoint", metavar="C", help="model checkpoint (default: the shipped model)")
-    parser.add_argument("--docs", metavar="DIR", help="also write DIR/demo.png and DIR/demo_result.md")
+    # The DemoConfig options: values read as text and checked by from_args (one line, exit 2).
+    add_flags(parser, DemoConfig, DEMO_FLAGS)
     parser.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
+
+
+def config_from_args(args) -> DemoConfig:
+    """The :class:`DemoConfig` of the parsed options (InputError if bad)."""
+    return from_args(DemoConfig, args, DEMO_FLAGS)
 
 
 def result_markdown(result: dict) -> str:
@@ -219,33 +234,32 @@ def run(args) -> int:
     from ..sgenv import SGEnvironment
 
     t0 = time.perf_counter()
-    out = Path(args.out)
+    cfg = config_from_args(args)
+    out = Path(cfg.out)
     _check_out(out)
-    if args.checkpoint is not None and not Path(args.checkpoint).is_file():
-        raise InputError(f"--checkpoint {args.checkpoint}: no such file; omit it for the shipped model")
-    if args.spp < 1 or args.refine_steps < 0:
-        raise InputError("--spp must be >= 1 and --refine-steps >= 0")
-    predictor = load_predictor(args.checkpoint)  # before rendering: a bad checkpoint fails fast
+    if cfg.checkpoint is not None and not Path(cfg.checkpoint).is_file():
+        raise InputError(f"--checkpoint {cfg.checkpoint}: no such file; omit it for the shipped model")
+    predictor = load_predictor(cfg.checkpoint)  # before rendering: a bad checkpoint fails fast
     grid = int(predictor.grid)
-    res = int(args.res or grid)
+    res = cfg.res if cfg.res is not None else grid
     truth, env = default_material(res), default_env()
     timings = {}
 
-    say(f"rendering the default scene ({res}x{res}, {args.spp} spp) with Mitsuba")
+    say(f"rendering the default scene ({res}x{res}, {cfg.spp} spp) with Mitsuba")
     t = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
-    capture(truth, env, "near", out / "capture", spp=args.spp, res=res, progress=True)
+    capture(truth, env, "near", out / "capture", spp=cfg.spp, res=res, progress=True)
     timings["capture"] = round(time.perf_counter() - t, 3)
 
     t = time.perf_counter()
-    cfg = EstimateConfig(
+    estimate = EstimateConfig(
         flash=str(out / "capture" / "flash.exr"),
         noflash=str(out / "capture" / "noflash.exr"),
         out=str(out / "estimate"),
-        checkpoint=args.checkpoint,
-        refine=RefineConfig(steps=args.refine_steps),
+        checkpoint=cfg.checkpoint,
+        refine=RefineConfig(steps=cfg.refine_steps),
     )
-    summary = run_estimate(cfg, truth=truth, log=say, bar=progress, predictor=predictor)
+    summary = run_estimate(estimate, truth=truth, log=say, bar=progress, predictor=predictor)
     timings["estimate"] = round(time.perf_counter() - t, 3)
     est_env = (
         SGEnvironment.load(out / "estimate" / "env.json")
@@ -259,7 +273,7 @@ def run(args) -> int:
         "out": str(out),
         "report": str(out / "estimate" / "report.html"),
         "resolution": res,
-        "spp": args.spp,
+        "spp": cfg.spp,
         "map_error": summary["map_error"],
         "lighting_error": light,
         "rerender_error": {k: (v["mean"] if v else None) for k, v in summary["rerender_error"].items()},
@@ -267,10 +281,10 @@ def run(args) -> int:
         "timings": {**timings, "estimate_stages": summary["timings"]},
     }
     atomic_write_text(out / "demo.json", json.dumps(result, indent=1, default=float) + "\n")
-    if args.docs:
+    if cfg.docs:
         import shutil
 
-        docs = Path(args.docs)
+        docs = Path(cfg.docs)
         docs.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(out / "demo.png", docs / "demo.png")
         atomic_write_text(docs / "demo_result.md", result_markdown(result))

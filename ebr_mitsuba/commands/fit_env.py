@@ -9,11 +9,16 @@ log-space term, with Adam in Dr.Jit, on the map area-resampled to H x 2H cells (
 definitions: ebr_mitsuba.envfit). The fit error is reported on stderr (and with --json on stdout:
 {"out", "lobes", "error": {"rel_l1", "rel_rmse", "log_rmse", "energy", "fit": {...}},
 "initial_error", "loss_history", "seconds", "settings"}).
+
+The options ``--lobes``, ``--iters``, ``--height``, ``--lr``, ``--log-weight`` are fields of
+:class:`ebr_mitsuba.envfit.EnvFitConfig` (flags, defaults and help generated from its metadata);
+a bad value is one line naming the flag (exit 2).
 """
 
 from __future__ import annotations
 
-from ..envfit import DEFAULT_HEIGHT, DEFAULT_ITERATIONS, DEFAULT_LOBES, DEFAULT_LOG_WEIGHT, DEFAULT_LR
+from ..envfit import ENVFIT_FLAGS, EnvFitConfig
+from ..typedconfig import add_flags, from_args
 from ._common import emit_json, say
 
 NAME = "fit-env"
@@ -22,30 +27,15 @@ HELP = "fit SG lobes to an equirectangular environment map"
 
 def add_arguments(parser) -> None:
     parser.add_argument("map", metavar="MAP", help="equirectangular .hdr or .exr")
-    parser.add_argument("--lobes", type=int, default=DEFAULT_LOBES, help=f"lobes (default {DEFAULT_LOBES})")
     parser.add_argument("--out", required=True, metavar="env.json", help="output SG environment")
-    parser.add_argument(
-        "--iters",
-        type=int,
-        default=DEFAULT_ITERATIONS,
-        help=f"Adam iterations (default {DEFAULT_ITERATIONS})",
-    )
-    parser.add_argument(
-        "--height",
-        type=int,
-        default=DEFAULT_HEIGHT,
-        help=f"rows of the resampled map the fit runs on (default {DEFAULT_HEIGHT})",
-    )
-    parser.add_argument(
-        "--lr", type=float, default=DEFAULT_LR, help=f"Adam learning rate (default {DEFAULT_LR})"
-    )
-    parser.add_argument(
-        "--log-weight",
-        type=float,
-        default=DEFAULT_LOG_WEIGHT,
-        help=f"weight of the log-space term (default {DEFAULT_LOG_WEIGHT})",
-    )
+    # The EnvFitConfig options: values read as text and checked by from_args (one line, exit 2).
+    add_flags(parser, EnvFitConfig, ENVFIT_FLAGS)
     parser.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
+
+
+def config_from_args(args) -> EnvFitConfig:
+    """The :class:`~ebr_mitsuba.envfit.EnvFitConfig` of the parsed options (InputError if bad)."""
+    return from_args(EnvFitConfig, args, ENVFIT_FLAGS)
 
 
 def run(args) -> int:
@@ -53,8 +43,9 @@ def run(args) -> int:
     from ..envmap import load_equirect
     from ._common import progress
 
+    cfg = config_from_args(args)
     emap = load_equirect(args.map)
-    bar = progress(total=max(args.iters, 1), desc="fit-env", unit="it", disable=None)
+    bar = progress(total=max(cfg.iterations, 1), desc="fit-env", unit="it", disable=None)
     last = [0]
 
     def tick(it, loss):
@@ -62,15 +53,7 @@ def run(args) -> int:
         last[0] = it
         bar.set_postfix(loss=f"{loss:.4g}")
 
-    result = fit_sg(
-        emap,
-        lobes=args.lobes,
-        iterations=args.iters,
-        height=args.height,
-        lr=args.lr,
-        log_weight=args.log_weight,
-        progress=tick,
-    )
+    result = fit_sg(emap, cfg, progress=tick)
     bar.close()
     result.env.save(args.out)
     e = result.error

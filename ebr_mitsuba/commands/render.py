@@ -7,6 +7,8 @@ near_noflash, far_flash, far_noflash). Scene parameters (``$name`` in the XML) a
 ``-D name=value`` (repeatable); a parameter the scene does not declare is an error. ``--spp``
 overrides the sample count of the scene's sampler. The image is written atomically as linear
 RGB float32 EXR. ``--json`` prints {"out", "scene", "seconds", "spp", "resolution", "variant"}.
+``--spp`` and ``--seed`` are the fields of :class:`RenderConfig` (flags, defaults and help generated
+from its metadata); a bad value is one line naming the flag (exit 2).
 
 Bundled scenes (camera, flash and sample as docs/conventions.md, "Geometry and pixel grid"; direct
 integrator, box filter) and their parameters, defaults in brackets:
@@ -31,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..typedconfig import add_flags, config, from_args, option
 from ._common import emit_json, say
 
 NAME = "render"
@@ -39,13 +42,26 @@ HELP = "render a Mitsuba XML scene to an EXR image"
 _KEY = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 
+@config(error=InputError, cli=True)
+class RenderConfig:
+    """How ``ebr render`` renders a scene (a bad value is an :class:`~ebr_mitsuba.errors.InputError`
+    naming the flag)."""
+
+    spp: int | None = option(
+        None, "samples per pixel (none: the scene's sampler setting)", minimum=1, shown="the scene's sampler"
+    )
+    seed: int = option(0, "sampler seed", minimum=0, maximum=2**32 - 1, metavar="S")
+
+
+#: The fields ``ebr render`` sets from its flags (:func:`ebr_mitsuba.typedconfig.add_flags`).
+RENDER_FLAGS = ("spp", "seed")
+
+
 def add_arguments(parser) -> None:
     parser.add_argument("scene", metavar="SCENE.xml", help="Mitsuba XML scene file or bundled scene name")
     parser.add_argument("--out", required=True, metavar="IMG.exr", help="output image (.exr)")
-    parser.add_argument(
-        "--spp", type=int, default=None, help="samples per pixel (default: the scene's sampler setting)"
-    )
-    parser.add_argument("--seed", type=int, default=0, help="sampler seed (default 0)")
+    # The RenderConfig options: values read as text and checked by from_args (one line, exit 2).
+    add_flags(parser, RenderConfig, RENDER_FLAGS)
     parser.add_argument(
         "-D",
         dest="defines",
@@ -84,17 +100,14 @@ def run(args) -> int:
         raise InputError(f"{out}: the output must be an .exr file")
     if out.is_dir():
         raise InputError(f"{out}: is a directory; give an image file name")
-    if args.spp is not None and args.spp < 1:
-        raise InputError(f"--spp must be >= 1 (got {args.spp})")
-    if args.seed < 0:
-        raise InputError(f"--seed must be >= 0 (got {args.seed})")
+    cfg = from_args(RenderConfig, args, RENDER_FLAGS)
     params = parse_defines(args.defines)
     path = resolve_scene_path(args.scene)
     t0 = time.perf_counter()
     scene = load_scene(path, **params)
     sensor = scene.sensors()[0]
-    spp = int(args.spp) if args.spp is not None else int(sensor.sampler().sample_count())
-    image = np.array(mi.render(scene, spp=spp, seed=int(args.seed)), dtype=np.float32)
+    spp = cfg.spp if cfg.spp is not None else int(sensor.sampler().sample_count())
+    image = np.array(mi.render(scene, spp=spp, seed=cfg.seed), dtype=np.float32)
     image = image.reshape(image.shape[0], image.shape[1], -1)
     if image.shape[-1] > 3:
         image = image[..., :3]

@@ -17,6 +17,8 @@ measured Monte-Carlo standard error of the comparison.
 Exit status: 0 when every check passes, 1 when one fails, 2 on bad input. ``--json`` prints
 ``{"passed", "spp", "seconds", "cases": [{"name", "reference", "rel_rmse", "excess", "max_abs",
 "tolerance", "noise", "budget", "passed", "seconds"}, ...]}``; ``--markdown`` writes the table.
+``--spp`` and ``--seed`` are the fields of :class:`ebr_mitsuba.validate.ValidateConfig` (flags,
+defaults and help generated from its metadata).
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import time
 from pathlib import Path
 
 from ..errors import InputError
+from ..typedconfig import add_flags, from_args
 from ._common import emit_json, progress, say
 
 NAME = "validate"
@@ -32,7 +35,7 @@ HELP = "check plugins and fast renderer against path-traced references"
 
 
 def add_arguments(p) -> None:
-    from ..validate import DEFAULT_SPP
+    from ..validate import VALIDATE_FLAGS, ValidateConfig
 
     p.add_argument(
         "scenes",
@@ -43,13 +46,8 @@ def add_arguments(p) -> None:
     p.add_argument(
         "--case", action="append", default=[], metavar="NAME", help="run only the named case(s) (repeatable)"
     )
-    p.add_argument(
-        "--spp",
-        type=int,
-        default=DEFAULT_SPP,
-        help=f"samples per point of the path-traced references (default {DEFAULT_SPP})",
-    )
-    p.add_argument("--seed", type=int, default=0, help="seed of the references (default 0)")
+    # The ValidateConfig options: values read as text and checked by from_args (one line, exit 2).
+    add_flags(p, ValidateConfig, VALIDATE_FLAGS)
     p.add_argument(
         "--markdown",
         type=Path,
@@ -58,6 +56,13 @@ def add_arguments(p) -> None:
         help="also write the result table as Markdown",
     )
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
+
+
+def config_from_args(args):
+    """The :class:`~ebr_mitsuba.validate.ValidateConfig` of the parsed options (InputError if bad)."""
+    from ..validate import VALIDATE_FLAGS, ValidateConfig
+
+    return from_args(ValidateConfig, args, VALIDATE_FLAGS)
 
 
 def _cases(args):
@@ -109,19 +114,18 @@ def run(args) -> int:
     from ..fsutil import atomic_write_text
     from ..validate import run_case
 
-    if args.spp < 1:
-        raise InputError(f"--spp {args.spp}: must be ≥ 1")
+    cfg = config_from_args(args)
     cases = _cases(args)
     t0 = time.perf_counter()
     rows = []
     bar = progress(cases, desc="validate", unit="case")
     for case in bar:
         bar.set_postfix_str(case.name)
-        rows.extend(run_case(case, spp=args.spp, seed=args.seed))
+        rows.extend(run_case(case, cfg))
     result = {
         "passed": all(r["passed"] for r in rows),
-        "spp": args.spp,
-        "seed": args.seed,
+        "spp": cfg.spp,
+        "seed": cfg.seed,
         "seconds": time.perf_counter() - t0,
         "cases": rows,
     }

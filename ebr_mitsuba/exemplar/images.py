@@ -25,9 +25,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..errors import InputError
-from ..geometry import Shot, near_shot
+from ..geometry import DEFAULT_EXEMPLAR_ROUGHNESS, Shot, near_shot
 from ..sgenv import SGEnvironment
 from ..svbrdf import SVBRDF
+from ..typedconfig import check, config, option
 from . import EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR
 
 if TYPE_CHECKING:
@@ -36,6 +37,42 @@ if TYPE_CHECKING:
     from ..render.inputs import DrLobes, RenderOptions
 
 RENDERERS = ("mitsuba", "fast")
+
+
+@config(error=InputError, cli=True)
+class ExemplarsConfig:
+    """How :func:`render_exemplars` renders (the options of ``ebr exemplars``; a bad value is an
+    :class:`~ebr_mitsuba.errors.InputError` naming the flag)."""
+
+    roughness: tuple[float, ...] = option(
+        DEFAULT_EXEMPLAR_ROUGHNESS,
+        "exemplar roughness values, each given once",
+        minimum=0,
+        maximum=1,
+        nonempty=True,
+        metavar="R1,R2,...",
+    )
+    point_light: bool = option(False, "point-light exemplars (near flash only; --env is then ignored)")
+    renderer: str = option(
+        "mitsuba",
+        "mitsuba: path-traced (direct integrator, box filter); fast: the fast renderer's quadrature "
+        "(SG environments only)",
+        choices=RENDERERS,
+        metavar="NAME",
+    )
+    res: int = option(256, "image size, square", minimum=16, maximum=4096)
+    spp: int = option(256, "Mitsuba samples / quadrature directions per pixel", minimum=1)
+    seed: int = option(0, "sampler seed (quadrature pattern for fast)", minimum=0)
+
+    def __post_init__(self):
+        check(self)
+        if len({f"{r:.3f}" for r in self.roughness}) != len(self.roughness):
+            text = ",".join(f"{r:g}" for r in self.roughness)
+            raise InputError(f"--roughness {text!r}: a value repeats; give each once")
+
+
+#: The fields ``ebr exemplars`` sets from its flags (:func:`ebr_mitsuba.typedconfig.add_flags`).
+EXEMPLARS_FLAGS = ("roughness", "point_light", "renderer", "res", "spp", "seed")
 
 
 def exemplar_material(size: int, roughness: float) -> SVBRDF:
@@ -201,28 +238,18 @@ def exemplar_images(
     return [stack[i] for i in range(n_img)]
 
 
-def render_exemplars(
-    env_spec: str | None,
-    roughness: list[float],
-    point_light: bool,
-    renderer: str,
-    res: int,
-    spp: int,
-    seed: int,
-):
-    """``ebr exemplars``' images (list of (res, res, 3) float32), the shot and the env record:
-    ``renderer`` ``mitsuba`` (path-traced, :func:`ebr_mitsuba.capture.render_shot`, seed
-    ``shot_seed(seed, k)`` per exemplar) or ``fast`` (the fast renderer's quadrature, SG
-    environments only); ``env_spec`` as ``--env`` (ignored with ``point_light``)."""
+def render_exemplars(env_spec: str | None, config: ExemplarsConfig | None = None):
+    """``ebr exemplars``' images (list of (res, res, 3) float32), the shot and the env record, as
+    ``config`` (default: :class:`ExemplarsConfig`'s defaults) says: ``renderer`` ``mitsuba``
+    (path-traced, :func:`ebr_mitsuba.capture.render_shot`, seed ``shot_seed(seed, k)`` per
+    exemplar) or ``fast`` (the fast renderer's quadrature, SG environments only); ``env_spec`` as
+    ``--env`` (ignored for point-light exemplars)."""
     from ..capture import render_shot, shot_seed
     from ..sources import parse_env
 
-    if renderer not in RENDERERS:
-        raise InputError(f"--renderer {renderer!r}: use one of {', '.join(RENDERERS)}")
-    if not 16 <= res <= 4096:
-        raise InputError(f"--res must be in [16, 4096] (got {res})")
-    if spp < 1 or seed < 0:
-        raise InputError(f"--spp must be >= 1 and --seed >= 0 (got {spp}, {seed})")
+    cfg = config or ExemplarsConfig()
+    roughness, point_light, renderer = list(cfg.roughness), cfg.point_light, cfg.renderer
+    res, spp, seed = cfg.res, cfg.spp, cfg.seed
     if point_light:
         shot = near_shot(True, env=False)
         source = None
@@ -255,7 +282,9 @@ def render_exemplars(
 
 
 __all__ = [
+    "EXEMPLARS_FLAGS",
     "RENDERERS",
+    "ExemplarsConfig",
     "env_exemplar_images",
     "env_shot",
     "exemplar_images",
