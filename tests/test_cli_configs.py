@@ -6,15 +6,15 @@ here: the commands fail on the bad value before any work."""
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import re
 
 import pytest
+from cli_help import help_entries, subparser
 
 from ebr_mitsuba import typedconfig as tc
 from ebr_mitsuba.capture import CAPTURE_FLAGS, CaptureConfig
-from ebr_mitsuba.cli import build_parser, main
+from ebr_mitsuba.cli import main
 from ebr_mitsuba.commands.demo import DEMO_FLAGS, DemoConfig
 from ebr_mitsuba.commands.render import RENDER_FLAGS, RenderConfig
 from ebr_mitsuba.envfit import ENVFIT_FLAGS, EnvFitConfig
@@ -40,26 +40,6 @@ COMMANDS = {
 }
 
 
-def _parser(name: str) -> argparse.ArgumentParser:
-    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
-    return sub.choices[name]
-
-
-def _help_entries(parser) -> dict[str, str]:
-    """``--help`` as {option: its help text, whitespace folded}."""
-    entries, flag = {}, None
-    for line in parser.format_help().splitlines():
-        if line.startswith("  -"):
-            invocation, *text = re.split(r"\s{2,}", line.strip(), maxsplit=1)
-            flag = invocation.split()[0].rstrip(",")
-            entries[flag] = text[0] if text else ""
-        elif flag and line.startswith(" " * 10):
-            entries[flag] += " " + line.strip()
-        else:
-            flag = None
-    return {k: " ".join(v.split()) for k, v in entries.items()}
-
-
 def _shown(f: dataclasses.Field) -> str:
     """A field's default as ``--help`` writes it: the table's text, a string unquoted, a sequence
     comma-separated."""
@@ -72,7 +52,9 @@ def _shown(f: dataclasses.Field) -> str:
 @pytest.mark.parametrize("name", COMMANDS)
 def test_every_option_is_a_config_field_or_an_input(name):
     cls, flags, own, _ = COMMANDS[name]
-    options = {s for a in _parser(name)._actions for s in a.option_strings if s.startswith("-") and s != "-h"}
+    options = {
+        s for a in subparser(name)._actions for s in a.option_strings if s.startswith("-") and s != "-h"
+    }
     generated = {tc.flag_name(cls, n) for n in flags}
     assert options - GLOBAL - own == generated, name
     assert not own & generated
@@ -81,9 +63,9 @@ def test_every_option_is_a_config_field_or_an_input(name):
 @pytest.mark.parametrize("name", COMMANDS)
 def test_help_and_parser_defaults_are_the_config_defaults(name):
     cls, flags, _, argv = COMMANDS[name]
-    parser = _parser(name)
+    parser = subparser(name)
     args = parser.parse_args(argv)
-    entries = _help_entries(parser)
+    entries = help_entries(parser)
     fields = {f.name: f for f in dataclasses.fields(cls)}
     for field_name in flags:
         f = fields[field_name]
@@ -101,7 +83,7 @@ def test_help_and_parser_defaults_are_the_config_defaults(name):
 def test_defaults_spelled_out():
     """The values users knew before the flags were generated (a user's command line still means
     the same)."""
-    entries = {name: _help_entries(_parser(name)) for name in COMMANDS}
+    entries = {name: help_entries(subparser(name)) for name in COMMANDS}
     assert "[64]" in entries["capture"]["--spp"] and "[256]" in entries["capture"]["--res"]
     assert "[direct]" in entries["capture"]["--integrator"] and "[1]" in entries["capture"]["--env-scale"]
     assert CaptureConfig() == CaptureConfig(spp=64, res=256, seed=0, integrator="direct", env_scale=1.0)
@@ -120,23 +102,23 @@ def test_defaults_spelled_out():
 def test_flags_set_the_fields():
     cfg = tc.from_args(
         ExemplarsConfig,
-        _parser("exemplars").parse_args(
+        subparser("exemplars").parse_args(
             ["--out", "o", "--roughness", "0.2,0.5", "--point-light", "--renderer", "fast", "--res", "32"]
         ),
         EXEMPLARS_FLAGS,
     )
     assert cfg == ExemplarsConfig(roughness=(0.2, 0.5), point_light=True, renderer="fast", res=32)
-    args = _parser("capture").parse_args(
+    args = subparser("capture").parse_args(
         COMMANDS["capture"][3] + ["--spp", "4", "--integrator", "path", "--env-scale", "2.5"]
     )
     assert tc.from_args(CaptureConfig, args, CAPTURE_FLAGS) == CaptureConfig(
         spp=4, integrator="path", env_scale=2.5
     )
-    args = _parser("fit-env").parse_args(COMMANDS["fit-env"][3] + ["--iters", "7", "--log-weight", "0"])
+    args = subparser("fit-env").parse_args(COMMANDS["fit-env"][3] + ["--iters", "7", "--log-weight", "0"])
     assert tc.from_args(EnvFitConfig, args, ENVFIT_FLAGS) == EnvFitConfig(iterations=7, log_weight=0.0)
-    args = _parser("render").parse_args(COMMANDS["render"][3] + ["--spp", "8"])
+    args = subparser("render").parse_args(COMMANDS["render"][3] + ["--spp", "8"])
     assert tc.from_args(RenderConfig, args, RENDER_FLAGS).spp == 8
-    args = _parser("demo").parse_args(["--res", "32", "--refine-steps", "0", "--checkpoint", "m.pt"])
+    args = subparser("demo").parse_args(["--res", "32", "--refine-steps", "0", "--checkpoint", "m.pt"])
     assert tc.from_args(DemoConfig, args, DEMO_FLAGS) == DemoConfig(res=32, refine_steps=0, checkpoint="m.pt")
 
 

@@ -5,14 +5,14 @@ here: these tests only parse."""
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import re
 
 import pytest
+from cli_help import help_entries, subparser
 
 from ebr_mitsuba import typedconfig as tc
-from ebr_mitsuba.cli import build_parser, main
+from ebr_mitsuba.cli import main
 from ebr_mitsuba.commands import estimate as cmd
 from ebr_mitsuba.estimate.fivelight import FIVELIGHT_FLAGS, FiveLightConfig
 from ebr_mitsuba.estimate.pipeline import ESTIMATE_FLAGS, EstimateConfig
@@ -22,34 +22,12 @@ CONFIGS = ((EstimateConfig, ESTIMATE_FLAGS), (RefineConfig, REFINE_FLAGS), (Five
 NOT_CONFIG = {"--help", "--json", "--variant", "--deterministic"}  # options of the command itself
 
 
-def _parser() -> argparse.ArgumentParser:
-    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
-    return sub.choices["estimate"]
-
-
 def _field(cls, name) -> dataclasses.Field:
     return next(f for f in dataclasses.fields(cls) if f.name == name)
 
 
-def _help_entries(parser) -> dict[str, str]:
-    """``--help`` as {flag: its help text, whitespace folded}."""
-    entries, flag = {}, None
-    for line in parser.format_help().splitlines():
-        if line.startswith("  -"):
-            invocation, *text = re.split(r"\s{2,}", line.strip(), maxsplit=1)
-            flag = invocation.split()[0].rstrip(",")
-            if flag == "-h":
-                flag = "--help"
-            entries[flag] = text[0] if text else ""
-        elif flag and line.startswith(" " * 10):
-            entries[flag] += " " + line.strip()
-        else:
-            flag = None
-    return {k: " ".join(v.split()) for k, v in entries.items()}
-
-
 def test_every_option_is_a_config_field_and_every_field_a_flag():
-    parser = _parser()
+    parser = subparser("estimate")
     options = {s for a in parser._actions for s in a.option_strings if s.startswith("--")}
     flags = {tc.flag_name(cls, n) for cls, names in CONFIGS for n in names}
     bool_negations = {"--no-" + tc.flag_name(EstimateConfig, "flash_fit")[2:]}  # --no-flash-fit
@@ -63,9 +41,9 @@ def test_every_option_is_a_config_field_and_every_field_a_flag():
 def test_help_and_parser_defaults_are_the_config_defaults():
     """The acceptance line of issue 11: `ebr estimate --help` shows the defaults of EstimateConfig
     (and RefineConfig, FiveLightConfig); the parser's defaults are the fields' defaults."""
-    parser = _parser()
+    parser = subparser("estimate")
     args = parser.parse_args(["--out", "o"])
-    entries = _help_entries(parser)
+    entries = help_entries(parser)
     checked = 0
     for cls, names in CONFIGS:
         for name in names:
@@ -92,7 +70,7 @@ def test_help_and_parser_defaults_are_the_config_defaults():
 
 
 def test_configs_from_the_flags_are_the_config_defaults():
-    parser = _parser()
+    parser = subparser("estimate")
     args = parser.parse_args(["--flash", "f.exr", "--out", "o"])
     assert cmd.estimate_config(args) == EstimateConfig(flash="f.exr", out="o")
     assert cmd.refine_config(args) == RefineConfig()
@@ -102,7 +80,7 @@ def test_configs_from_the_flags_are_the_config_defaults():
 
 
 def test_flags_set_the_fields():
-    parser = _parser()
+    parser = subparser("estimate")
     argv = ["--flash", "f.exr", "--noflash", "n.exr", "--out", "o", "--fov", "50", "--max-shift", "0.1"]
     argv += ["--flash-intensity", "3", "--max-size", "512", "--no-flash-fit", "--exposure-ratio", "2"]
     argv += [
@@ -168,11 +146,13 @@ def test_flash_noflash_options_are_refused_with_lights(tmp_path, capsys, extra):
     err = capsys.readouterr().err
     assert code == 2 and f"{extra[0]} does not apply to --lights" in err, err
     # an option given at its default value is not refused
-    args = _parser().parse_args(["--lights", "d", "--out", "o", "--fov", "45", "--refine-steps", "0"])
+    args = subparser("estimate").parse_args(
+        ["--lights", "d", "--out", "o", "--fov", "45", "--refine-steps", "0"]
+    )
     cmd.check_light_flags(args)
 
 
 def test_required_out_is_an_argparse_error():
     with pytest.raises(SystemExit) as exc:
-        _parser().parse_args(["--flash", "f.exr"])
+        subparser("estimate").parse_args(["--flash", "f.exr"])
     assert exc.value.code == 2
