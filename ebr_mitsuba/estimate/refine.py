@@ -19,9 +19,10 @@ per-pixel diffuse map absorbs, and per-pixel maps can fit the photos' noise. Ada
 by about its learning rate even at the optimum, so the normals get a rate 10× below the other
 maps and every rate decays linearly to 10% over the run; without that the normals dithered by
 about 7° on the demo capture whatever the prior weight. On the demo capture (``ebr demo``, 100
-steps, after the flash-profile fit) the defaults lower the re-render RMSE from 0.049 to 0.011 but
-leave the mean per-map RMSE at 0.029 (diffuse better, normals worse: docs/demo_result.md); on the
-test split they raise it (docs/models.md), which is why refinement is off by default.
+steps, after the flash-profile fit) the defaults lower the re-render RMSE from 0.033 to 0.010 but
+raise the mean per-map RMSE from 0.013 to 0.018 (diffuse better, the other maps worse:
+docs/demo_result.md); on the test split they raise it too (docs/models.md), which is why
+refinement is off by default.
 
 Best iterate. E is read (a host sync) at step 0, every ``log_every`` steps and after the last
 update; the parameters of the lowest E read are returned (``RefineResult.kept_step``; at step 0
