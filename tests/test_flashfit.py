@@ -172,3 +172,13 @@ def test_large_photos_are_fitted_on_an_area_averaged_copy():
     assert abs(half.roughness - full.roughness) <= 0.02
     assert half.diffuse.shape == full.diffuse.shape == (RES, RES, 3)
     np.testing.assert_allclose(half.level, full.level, rtol=0.02)
+
+
+def test_network_weight_grows_above_the_size_threshold():
+    from ebr_mitsuba.estimate.flashfit import NETWORK_WEIGHT_SIZE
+
+    opts = FlashFitConfig(network_weight=0.5, network_weight_large=0.75)
+    assert opts.weight_for(NETWORK_WEIGHT_SIZE) == 0.5
+    assert opts.weight_for(NETWORK_WEIGHT_SIZE + 1) == 0.75
+    with pytest.raises(InputError, match="network_weight_large"):
+        FlashFitConfig(network_weight_large=1.5)

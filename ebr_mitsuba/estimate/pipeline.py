@@ -518,7 +518,8 @@ def run_estimate(
             clip_level=clip,
             options=(fit_options := FlashFitConfig()),
         )
-        flash_fit = flash_fit.with_network_diffuse(np.asarray(maps.diffuse), fit_options.network_weight)
+        weight = fit_options.weight_for(max(flash_img.shape[:2]))
+        flash_fit = flash_fit.with_network_diffuse(np.asarray(maps.diffuse), weight)
         maps = flash_fit.maps(maps.normal, "ebr estimate (network normals, flash fit)")
         stage("flash fit", t0)
 
