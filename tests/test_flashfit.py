@@ -175,10 +175,10 @@ def test_large_photos_are_fitted_on_an_area_averaged_copy():
 
 
 def test_network_weight_grows_above_the_size_threshold():
-    from ebr_mitsuba.estimate.flashfit import NETWORK_WEIGHT_SIZE
+    from ebr_mitsuba.estimate.flashfit import NETWORK_WEIGHT_SIZE as N
 
-    opts = FlashFitConfig(network_weight=0.5, network_weight_large=0.75)
-    assert opts.weight_for(NETWORK_WEIGHT_SIZE) == 0.5
-    assert opts.weight_for(NETWORK_WEIGHT_SIZE + 1) == 0.75
-    with pytest.raises(InputError, match="network_weight_large"):
-        FlashFitConfig(network_weight_large=1.5)
+    opts = FlashFitConfig(network_weight=0.5)
+    assert opts.weight_for(N // 2) == opts.weight_for(N) == 0.5
+    assert opts.weight_for(2 * N) == pytest.approx(0.75)
+    assert opts.weight_for(4 * N) == pytest.approx(0.875)
+    assert FlashFitConfig(network_weight=1.0).weight_for(8 * N) == 1.0

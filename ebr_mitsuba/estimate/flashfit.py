@@ -44,8 +44,9 @@ scaled per channel to the fitted level (:meth:`FlashFit.with_network_diffuse`): 
 is denoised and free of the photo's shading, the photo's pattern is exact in its texture; chosen on
 the validation set ``configs/data_real_val.toml`` (training materials and maps, not the test
 split): mean diffuse RMSE 0.0619 (photo pattern) / 0.0627 (scaled network map) / 0.0567 (the
-blend). Above 256² the network's weight is ``network_weight_large`` (0.75): the photo's
-per-pixel noise grows as its pixels shrink while the network's map sharpens; on a 1024² 64-spp
+blend). Above 256² the photo pattern's share falls as 256 / size (:meth:`FlashFitConfig.weight_for`:
+0.25 at 512², 0.125 at 1024²): the photo's per-pixel noise grows as its pixels shrink while the
+network's map sharpens; on a 1024² 64-spp
 validation capture (``procedural:wood:5`` under ``procedural:8``, not a benchmark capture) the
 diffuse RMSE at 1024² was 0.0350 / 0.0255 / 0.0237 for weights 0.5 / 0.75 / 1 (0.0334 at 256²
 with 0.5). The flash photo is used for the pattern because it is the brighter, less quantised of
@@ -80,7 +81,7 @@ __all__ = ["FlashFit", "FlashFitConfig", "fit_flash"]
 
 METAL_MARGIN = 0.5  # the metal hypothesis wins when its cost is below this × the dielectric's
 TRIM = 0.1  # the albedo level is the mean of the middle 80 % of the per-pixel ratios
-NETWORK_WEIGHT_SIZE = 256  # photos above this side use network_weight_large
+NETWORK_WEIGHT_SIZE = 256  # above this side the photo pattern's weight falls as 1 / size
 TABLE_SIZE = 1024  # cos θ samples of the tabulated lobe (linear interpolation per pixel)
 
 
@@ -99,20 +100,18 @@ class FlashFitConfig:
     network_weight: float = option(
         0.5,
         "weight of the network's diffuse map (scaled to the fitted level) in the diffuse estimate, "
-        "photos up to 256² (NETWORK_WEIGHT_SIZE)",
-        minimum=0,
-        maximum=1,
-    )
-    network_weight_large: float = option(
-        0.75,
-        "the same weight for larger photos (their per-pixel noise grows; the network's map sharpens)",
+        "photos up to 256² (above: see FlashFitConfig.weight_for)",
         minimum=0,
         maximum=1,
     )
 
     def weight_for(self, size: int) -> float:
-        """The network map's weight for a photo whose larger side is ``size`` pixels."""
-        return self.network_weight if size <= NETWORK_WEIGHT_SIZE else self.network_weight_large
+        """The network map's weight for a photo whose larger side is ``size`` pixels:
+        ``network_weight`` up to NETWORK_WEIGHT_SIZE, above it the photo's share falls as
+        1 / size (its per-pixel noise grows as the pixels shrink; the network's map sharpens)."""
+        if size <= NETWORK_WEIGHT_SIZE:
+            return self.network_weight
+        return 1.0 - (1.0 - self.network_weight) * NETWORK_WEIGHT_SIZE / size
 
     pattern: float = option(
         0.125, "box of the pattern's local mean, fraction of the image side", above=0, maximum=1
@@ -422,7 +421,9 @@ def fit_flash(
     # the texture pattern: the flash photo minus the lobe, over its local mean (grey)
     img = (fl - spec_radiance / to_radiance).clamp_min(0.0).reshape(h, w, 3).numpy()
     radius = max(3, int(round(opts.pattern * max(h, w))) | 1) // 2  # an odd box of ≈ pattern × the side
-    pattern = (img / np.maximum(box_mean(img, radius), 1e-8)).mean(-1).astype(np.float32)
+    pattern = np.zeros((h, w), np.float32)
+    for c in range(3):  # one channel at a time: box_mean's float64 sums are the peak memory
+        pattern += (img[..., c] / np.maximum(box_mean(img[..., c], radius), 1e-8)).astype(np.float32) / 3
     diffuse = np.clip(level_rgb.numpy()[None, None, :] * pattern[..., None], 0.0, 1.0)
     return FlashFit(
         roughness=r_fit,
