@@ -198,7 +198,6 @@ def _trimmed_mean(x: torch.Tensor, cut: float = TRIM) -> torch.Tensor:
 def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, opts):
     """The roughness of lowest cost and whether the metal hypothesis wins, with the grid and its
     costs (module docstring); ``saturated`` (H, W) bool."""
-    from ..nets import torch_brdf as tb
 
     flash = np.asarray(flash, np.float64)
     noflash = np.asarray(noflash, np.float64)
@@ -250,24 +249,15 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
     clipped_rings = ring_sat >= 0.5
 
     grid = torch.linspace(opts.roughness_min, opts.roughness_max, opts.roughness_steps, dtype=torch.float64)
-    n_flat = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
     ring_v = torch.stack([torch.sqrt(1 - ring_cos**2), torch.zeros_like(ring_cos), ring_cos], -1)
 
-    def lobe(vv: torch.Tensor, r: float) -> torch.Tensor:  # π f_s over a set of co-located directions
-        spec = torch.full_like(vv, opts.f0)
-        rough = torch.full(vv.shape[:-1], r, dtype=torch.float64)
-        return math.pi * tb.specular_term(n_flat.expand_as(vv), vv, vv, spec, rough)[..., 0]
+    table = _LobeTable(cos)
 
-    # the lobe depends on cos θ alone: tabulate it and interpolate per pixel
-    table = torch.linspace(float(cos.min()), float(cos.max()), TABLE_SIZE, dtype=torch.float64)
-    table_v = torch.stack([torch.sqrt((1 - table**2).clamp_min(0.0)), torch.zeros_like(table), table], -1)
-    pos = (cos - table[0]) / max(float(table[-1] - table[0]), 1e-12) * (TABLE_SIZE - 1)
-    lo = pos.floor().long().clamp(0, TABLE_SIZE - 2)
-    frac = pos - lo
+    def lobe(vv: torch.Tensor, r: float) -> torch.Tensor:  # π f_s over a set of co-located directions
+        return _lobe(vv, r, opts.f0)
 
     def lobe_pixels(r: float) -> torch.Tensor:
-        t = lobe(table_v, r)
-        return t[lo] * (1 - frac) + t[lo + 1] * frac
+        return table(r, opts.f0)
 
     n_sat = max(float(saturated.sum()), 10.0)
     photo_scale = shade / to_radiance  # g units → photo units
@@ -317,24 +307,33 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
     return float(grid[best]), False, grid.numpy(), costs.numpy()
 
 
-def _lobe_pixels(cos: torch.Tensor, r: float, f0: float) -> torch.Tensor:
-    """π f_s of the flat sample at each pixel's co-located cos θ (F₀ ``f0``, roughness ``r``),
-    tabulated over cos θ in float64 and interpolated; same dtype as ``cos``."""
+def _lobe(v: torch.Tensor, r: float, f0: float) -> torch.Tensor:
+    """π f_s of the flat sample seen and lit along each co-located direction of ``v`` (N, 3),
+    float64 (F₀ ``f0``, roughness ``r``)."""
     from ..nets import torch_brdf as tb
 
-    table = torch.linspace(float(cos.min()), float(cos.max()), TABLE_SIZE, dtype=torch.float64)
-    v = torch.stack([torch.sqrt((1 - table**2).clamp_min(0.0)), torch.zeros_like(table), table], -1)
     n = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).expand_as(v)
-    t = (
-        math.pi
-        * tb.specular_term(n, v, v, torch.full_like(v, f0), torch.full(v.shape[:-1], r, dtype=torch.float64))[
-            ..., 0
-        ]
-    )
-    pos = (cos.double() - table[0]) / max(float(table[-1] - table[0]), 1e-12) * (TABLE_SIZE - 1)
-    lo = pos.floor().long().clamp(0, TABLE_SIZE - 2)
-    frac = pos - lo
-    return (t[lo] * (1 - frac) + t[lo + 1] * frac).to(cos.dtype)
+    spec = torch.full_like(v, f0)
+    rough = torch.full(v.shape[:-1], r, dtype=torch.float64)
+    return math.pi * tb.specular_term(n, v, v, spec, rough)[..., 0]
+
+
+class _LobeTable:
+    """The lobe at each pixel: it depends on cos θ alone, so it is tabulated over ``cos``'s range
+    (TABLE_SIZE samples, float64) and interpolated linearly; the interpolation weights are
+    computed once, a call per (roughness, F₀) evaluates the table only. Values in ``cos``'s dtype."""
+
+    def __init__(self, cos: torch.Tensor):
+        c = torch.linspace(float(cos.min()), float(cos.max()), TABLE_SIZE, dtype=torch.float64)
+        self.v = torch.stack([torch.sqrt((1 - c**2).clamp_min(0.0)), torch.zeros_like(c), c], -1)
+        pos = (cos.double() - c[0]) / max(float(c[-1] - c[0]), 1e-12) * (TABLE_SIZE - 1)
+        self.lo = pos.floor().long().clamp(0, TABLE_SIZE - 2)
+        self.frac = pos - self.lo
+        self.dtype = cos.dtype
+
+    def __call__(self, r: float, f0: float) -> torch.Tensor:
+        t = _lobe(self.v, r, f0)
+        return (t[self.lo] * (1 - self.frac) + t[self.lo + 1] * self.frac).to(self.dtype)
 
 
 def _area(a: np.ndarray, f: int) -> np.ndarray:
@@ -398,7 +397,7 @@ def fit_flash(
     cos = torch.from_numpy(view_directions(h, w, camera)[..., 2].astype(np.float32)).reshape(-1)
     shade = intensity * cos / (math.pi * (float(camera[2]) / cos) ** 2)  # G(x), unit albedo, flat
     if metal:
-        unit_pix = _lobe_pixels(cos, r_fit, 1.0)  # g units per unit F0
+        unit_pix = _LobeTable(cos)(r_fit, 1.0)  # g units per unit F0
         per_channel = f_only / (shade * unit_pix).clamp_min(1e-12)[:, None]
         f0_rgb = torch.stack([per_channel[ok, c].median() for c in range(3)]).clamp(1e-3, 1.0)
         spec_radiance = (unit_pix * shade)[:, None] * f0_rgb[None, :]
@@ -413,7 +412,7 @@ def fit_flash(
             metal=True,
             specular_rgb=f0_rgb.numpy().astype(np.float32),
         )
-    s_pix = _lobe_pixels(cos, r_fit, opts.f0)  # g units
+    s_pix = _LobeTable(cos)(r_fit, opts.f0)  # g units
     spec_radiance = s_pix[:, None] * shade[:, None]  # flash-only radiance of the lobe (grey F0)
     ratio = (f_only - spec_radiance) / shade[:, None]
     level_rgb = torch.stack([_trimmed_mean(ratio[ok, c]) for c in range(3)]).clamp(1e-4, 1.0)

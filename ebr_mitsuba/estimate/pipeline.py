@@ -509,6 +509,7 @@ def run_estimate(
         if noflash_img is None:  # a flash-only capture: the flash shot is the flash-only image
             noflash_img = np.zeros_like(flash_img)
         clip = work_inputs.clip_level if work_inputs.clip_level is not None else math.inf
+        fit_options = FlashFitConfig()
         flash_fit = fit_flash(
             flash_img,
             noflash_img,
@@ -516,7 +517,7 @@ def run_estimate(
             camera=(0.0, 0.0, near_distance(inputs.fov)),
             saturated=work_inputs.saturated,
             clip_level=clip,
-            options=(fit_options := FlashFitConfig()),
+            options=fit_options,
         )
         weight = fit_options.weight_for(max(flash_img.shape[:2]))
         flash_fit = flash_fit.with_network_diffuse(np.asarray(maps.diffuse), weight)
