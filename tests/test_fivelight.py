@@ -174,10 +174,12 @@ def test_estimate_lights_on_a_data_set_sample_matches_the_network(dl_model, tiny
         dl_model,
         "--flash-intensity",
         intensity,
+        "--no-flash-fit",
         "--out",
         out,
     )
     assert code == 0, err
+    assert summary["flash_fit"] is None
     assert summary["capture"] == "five-light" and summary["resolution"] == 32 and summary["model_grid"] == 32
     assert summary["inputs"]["geometry"] == "default five-light geometry"
     assert summary["inputs"]["lights"] == {f"light{k}": list(p) for k, p in enumerate(FIVE_LIGHT_POSITIONS)}
@@ -207,6 +209,47 @@ def test_estimate_lights_on_a_data_set_sample_matches_the_network(dl_model, tiny
         read_exr(out / "rerender" / "light0.exr") - photo0,
         atol=1e-5,
     )
+
+
+def test_estimate_lights_fits_the_photos_by_default(dl_model, tiny5, tmp_path, capsys):
+    """Without --no-flash-fit the maps are the photometric fit (estimate/photometric.py) of the
+    photos at the reference exposure, the network's maps its fallback; the summary says what it
+    found."""
+    from ebr_mitsuba.estimate.photometric import fit_photometric
+    from ebr_mitsuba.geometry import NEAR_DISTANCE
+    from ebr_mitsuba.imageio import read_image
+
+    sample = tiny5 / "samples" / "000000"
+    exposure = float(json.loads((sample / "sample.json").read_text())["camera"]["exposure"])
+    out = tmp_path / "est"
+    code, summary, err = _estimate(
+        capsys,
+        "--lights",
+        sample / "photos",
+        "--checkpoint",
+        dl_model,
+        "--flash-intensity",
+        10.0 * exposure,
+        "--out",
+        out,
+    )
+    assert code == 0, err
+    fit = summary["flash_fit"]
+    assert set(fit) == {"flash_fit", "photometric_fraction", "residual", "fallback"}
+    photos = [read_image(sample / "photos" / f"light{k}.png", "srgb") / exposure for k in range(5)]
+    want = fit_photometric(
+        photos,
+        FIVE_LIGHT_POSITIONS,
+        [10.0] * 5,
+        _net_maps(dl_model, photos),
+        camera=(0.0, 0.0, NEAR_DISTANCE),
+        saturated=[
+            np.any(read_image(sample / "photos" / f"light{k}.png", "srgb") >= 1.0, -1) for k in range(5)
+        ],
+    )
+    assert fit["fallback"] == want.fallback
+    np.testing.assert_allclose(read_exr(out / "maps" / "diffuse.exr"), want.maps.diffuse, atol=1e-4)
+    np.testing.assert_allclose(read_exr(out / "maps" / "normal.exr"), want.maps.normal, atol=1e-4)
 
 
 def test_estimate_lights_on_a_capture(dl_model, capture5, tmp_path, capsys):
@@ -339,3 +382,16 @@ def test_estimate_lights_model_and_flag_errors(dl_model, capture5, tmp_path, cap
     code, _, err = _estimate(capsys, "--out", out)
     assert code == 2 and "--flash F" in err and "--lights" in err
     assert not out.exists()
+
+
+def test_the_shipped_model_estimates_a_capture(capture5, tmp_path, capsys):
+    """The tracked five-light model (ebr_mitsuba/models/dualloss_small.pt) is what --lights uses
+    without --checkpoint: a missing file is a failure here, not a skip."""
+    assert fivelight.shipped_model_path().is_file()
+    out = tmp_path / "est"
+    code, summary, err = _estimate(capsys, "--lights", capture5, "--out", out)
+    assert code == 0, err
+    assert summary["model"]["checkpoint"].endswith("dualloss_small.pt")
+    assert summary["model_grid"] == 128 and summary["flash_fit"] is not None
+    for m in ("normal", "diffuse", "specular", "roughness"):
+        assert (out / "maps" / f"{m}.exr").is_file()

@@ -1,6 +1,6 @@
 """Measure speed against error and write the tables and plots (docs/bench/ in a checkout).
 
-  ebr bench [renderer|generate|extract-sg|estimate|models|all] [--out DIR] [--quick] [--json]
+  ebr bench [renderer|generate|extract-sg|estimate|models|fivelight|all] [--out DIR] [--quick] [--json]
 
 Each benchmark writes ``OUT/<name>.md`` (a Markdown table with the reference it was measured
 against, and the PNG plots it links) and returns its path:
@@ -16,10 +16,14 @@ against, and the PNG plots it links) and returns its path:
 * ``models``: the shipped model (its training summary) and every model and baseline (the oracle
   constant, the training-set mean maps, candidate checkpoints) on the fixed test split of the real
   assets, EBREnv Table 1 protocol, per material class, with a contact sheet (writes ``models.md``;
-  needs ``EBR_SPLIT_DATA``; optionally ``EBR_SHIPPED_RUN``, ``EBR_TRAIN_DATA``, ``EBR_CANDIDATES``).
+  needs ``EBR_SPLIT_DATA``; optionally ``EBR_SHIPPED_RUN``, ``EBR_TRAIN_DATA``, ``EBR_CANDIDATES``);
+* ``fivelight``: the five-light dual-loss models, the loss ablation (dual, parameter only, rendering
+  only) and the baselines on the five-light captures of the test split, beside the EBREnv model on
+  the same materials (writes ``fivelight.md``; needs ``EBR_FIVELIGHT_DATA``; optionally
+  ``EBR_FIVELIGHT_RUNS``, ``EBR_TRAIN_DATA``, ``EBR_SPLIT_DATA``).
 
 Default ``--out``: inside a checkout of ebr-mitsuba (the current directory or one above it holds
-the project's ``pyproject.toml``) the checkout's ``docs/bench`` (``docs`` for ``models``), the pages
+the project's ``pyproject.toml``) the checkout's ``docs/bench`` (``docs`` for ``models`` and ``fivelight``), the pages
 the documentation links; anywhere else ``./ebr-bench``, so that a run elsewhere never writes into
 the installed package's source tree.
 
@@ -47,7 +51,7 @@ HELP = "measure speed against error; write the benchmark pages (docs/bench/*.md 
 
 # Every benchmark name the toolkit plans; `available()` is the subset this version has (a module in
 # ebr_mitsuba.bench). Only those are listed in --help.
-BENCHMARKS = ("renderer", "generate", "extract-sg", "estimate", "models")
+BENCHMARKS = ("renderer", "generate", "extract-sg", "estimate", "models", "fivelight")
 OUTSIDE_CHECKOUT = Path("ebr-bench")
 PROJECT = "ebr-mitsuba"
 
@@ -100,7 +104,7 @@ def add_arguments(p) -> None:
         "--out",
         type=Path,
         default=None,
-        help="output folder (default: docs/bench of the checkout you are in, docs for 'models'; "
+        help="output folder (default: docs/bench of the checkout you are in, docs for 'models' and 'fivelight'; "
         f"./{OUTSIDE_CHECKOUT} outside a checkout)",
     )
     p.add_argument("--quick", action="store_true", help="reduced sizes, under a minute each: a smoke test")

@@ -16,7 +16,7 @@ estimate directory there is replaced, anything else is refused. One run per DIR:
 
 Five lights (--lights): one fixed camera framing the sample as for --flash, five photos each lit
 by one point light at a known position (no other light), estimated by a dual-loss model
-(`ebr train` with kind = "dualloss"; --checkpoint is needed while none is shipped). The light
+(the shipped one, docs/fivelight.md, or --checkpoint of `ebr train` with kind = "dualloss"). The light
 positions (and intensities) come from the capture.json of `ebr capture --setup five-light` in
 CAPTURE_DIR or beside L0; without one, L0..L4 (or CAPTURE_DIR/light0..light4) are at the
 positions of that setup. DIR receives maps/, inputs/, rerender/ and residual/ per light, novel/,

@@ -45,6 +45,13 @@ is in the photos' units.
 photos up to it, the photos' size up to ``max_size``, ``max_size`` above it with a warning); the
 network is fully convolutional and runs once over the whole working image.
 
+**The fit** (default; ``--no-flash-fit``: the network's maps). After the network, the photos
+themselves are fitted (:mod:`.photometric`): the photo of the light at the camera is a flash-only
+image, so the flash-profile fit of the flash / no-flash estimate reads the roughness and
+specular F₀ off it; photometric stereo over the five photos, minus that lobe, gives the normal and
+the albedo of every pixel; the roughness is then refined by the five photos' residual. Scored
+against the network alone in ``docs/fivelight.md``.
+
 **Checks in the report.** Saturation (as :mod:`.inputs`), and the highlight of the light at the
 camera (light 0 of the five-light setup) as the flash highlight of a flash/no-flash capture. Light
 positions more than :data:`POSITION_WARN` from those the model was trained with are a warning.
@@ -132,6 +139,12 @@ class FiveLightConfig:
         "largest working size (at least the model grid): larger photos are downsampled to it",
         flag="--max-size",
         metavar="N",
+    )
+    flash_fit: bool = option(
+        True,
+        "normals and albedo by photometric stereo, roughness and specular from the light at the "
+        "camera (estimate/photometric.py); --no-flash-fit keeps the network's maps",
+        flag="--flash-fit",
     )
 
 
@@ -376,12 +389,13 @@ def _from_files(paths: list[str], warnings: list[str]) -> LightSetup:
 @dataclass
 class LightPhotos:
     """The five photos at the first one's exposure, (H, W, 3) float32 each, square; ``saturated``
-    the (H, W) mask of pixels clipped in any photo."""
+    the (H, W) mask of pixels clipped in any photo, ``masks`` each photo's own."""
 
     images: dict[str, np.ndarray]
     saturated: np.ndarray
     exposure: dict[str, dict]
     source_size: tuple[int, int]
+    masks: dict[str, np.ndarray]
 
     @property
     def size(self) -> int:
@@ -391,8 +405,12 @@ class LightPhotos:
         if size == self.size:
             return self
         images = {k: resize_area(v, (size, size)) for k, v in self.images.items()}
-        mask = resize_area(self.saturated.astype(np.float32)[..., None], (size, size))[..., 0] > 0
-        return LightPhotos(images, mask, self.exposure, self.source_size)
+
+        def shrink(m: np.ndarray) -> np.ndarray:  # a pixel touching a clipped one is clipped
+            return resize_area(m.astype(np.float32)[..., None], (size, size))[..., 0] > 0
+
+        masks = {k: shrink(m) for k, m in self.masks.items()}
+        return LightPhotos(images, shrink(self.saturated), self.exposure, self.source_size, masks)
 
 
 def load_photos(setup: LightSetup, saturation_level: float | None, warnings: list[str]) -> LightPhotos:
@@ -420,7 +438,8 @@ def load_photos(setup: LightSetup, saturation_level: float | None, warnings: lis
     if h != w:
         warnings.append(f"frame {w}x{h} is not square: centre-cropped to the sample square")
         images = {k: np.ascontiguousarray(centre_crop(v)) for k, v in images.items()}
-    saturated = saturation_mask(images, levels, saturation_level)
+    masks = {k: saturation_mask({k: v}, {k: levels[k]}, saturation_level) for k, v in images.items()}
+    saturated = np.logical_or.reduce(list(masks.values()))
     frac = float(saturated.mean())
     if frac > MAX_SATURATED:
         raise InputError(
@@ -432,7 +451,7 @@ def load_photos(setup: LightSetup, saturation_level: float | None, warnings: lis
     clip_negatives(images, warnings)
     exposure = _exposures(paths, any(v is not None for v in levels.values()), warnings)
     images = {k: (v * np.float32(exposure[k]["factor"])).astype(np.float32) for k, v in images.items()}
-    return LightPhotos(images, saturated, exposure, (int(h), int(w)))
+    return LightPhotos(images, saturated, exposure, (int(h), int(w)), masks)
 
 
 def _exposures(paths: dict[str, str], ldr: bool, warnings: list[str]) -> dict[str, dict]:
@@ -560,6 +579,23 @@ def run_fivelight(
         raise RuntimeError(f"the network returned {maps.shape} maps for a {work}x{work} image")
     stage("maps", t0)
 
+    fit = None
+    if cfg.flash_fit:
+        from .photometric import fit_photometric
+
+        t0 = time.perf_counter()
+        log("fitting the photos: photometric stereo; roughness and specular from the light at the camera")
+        fit = fit_photometric(  # the network's input is at the reference exposure: every light at
+            net_input,  # DEFAULT_FLASH_INTENSITY (module docstring, "Exposure")
+            [s.position for s in setup.shots],
+            [DEFAULT_FLASH_INTENSITY] * LIGHT_COUNT,
+            maps,
+            camera=setup.shots[0].camera,
+            saturated=[work_photos.masks[s.name] for s in setup.shots],
+        )
+        maps = fit.maps
+        stage("flash fit", t0)
+
     t0 = time.perf_counter()
     log(f"re-rendering the {LIGHT_COUNT} shots at {work}x{work}")
     if known is None:
@@ -611,6 +647,7 @@ def run_fivelight(
         "rerender_error": {"network": errors, "refined": None},
         "refine": None,
         "prediction_timings": {"network": timings["maps"]},
+        "flash_fit": None if fit is None else fit.to_json(),
         "warnings": list(warnings),
         "timings": timings,
     }
@@ -618,7 +655,9 @@ def run_fivelight(
     t0 = time.perf_counter()
     log(f"writing {out}")
     with atomic_dir(out) as tmp:
-        source = "ebr estimate --lights (five-light, dual-loss network)"
+        source = "ebr estimate --lights (five-light, dual-loss network" + (
+            ", photometric fit)" if fit else ")"
+        )
         files = outputs.write_maps(maps, tmp / "maps", source)
         files += outputs.write_shots(tmp, work_photos.images, renders)
         reference = intensities[setup.shots[0].name][0]

@@ -41,9 +41,17 @@ def model_predictor(bundle, fixed_roughness: float | None = None) -> Callable[[d
     def run(item: dict, names: list[str]) -> SVBRDF:
         photos = item["photos"] / float(item["exposure"])  # the reference exposure, as in training
         if bundle.kind == "dualloss":
+            size = tuple(photos.shape[-2:])
+            grid = int(bundle.resolution)
+            if size != (grid, grid):  # the grid-resampled estimate, as for ebrenv below
+                photos = torch.nn.functional.interpolate(photos, size=(grid, grid), mode="area")
             with torch.no_grad():
-                maps = bundle.dualloss(photos[None].to(bundle.device))
-            return maps.to_svbrdf(0)
+                maps = bundle.dualloss(photos[None].to(bundle.device)).to_svbrdf(0)
+            if maps.shape != size:
+                from ..materials import resample_svbrdf
+
+                maps = resample_svbrdf(maps, size)
+            return maps
         if "noflash" not in names:
             raise InputError(f"the data set has shots {names}; an ebrenv model needs flash / no-flash pairs")
         img = {n: photos[k].permute(1, 2, 0).numpy() for k, n in enumerate(names)}
