@@ -98,6 +98,7 @@ def config_sections() -> list[tuple[str, str, type, object]]:
     from .envfit import EnvFitConfig
     from .estimate.fivelight import FiveLightConfig
     from .estimate.flashfit import FlashFitConfig
+    from .estimate.photometric import PhotometricConfig
     from .estimate.pipeline import EstimateConfig
     from .estimate.refine import RefineConfig
     from .exemplar.images import ExemplarsConfig
@@ -127,6 +128,7 @@ def config_sections() -> list[tuple[str, str, type, object]]:
         ("the flash-profile fit (FlashFitConfig)", "", FlashFitConfig, None),
         ("test-time refinement (RefineConfig)", "", RefineConfig, None),
         ("`ebr estimate --lights` (FiveLightConfig)", "", FiveLightConfig, None),
+        ("the photometric fit of `--lights` (PhotometricConfig)", "", PhotometricConfig, None),
         ("`ebr insert` (InsertConfig)", "", InsertConfig, None),
         ("`ebr demo` (DemoConfig)", "", DemoConfig, None),
         ("`ebr render` (RenderConfig)", "", RenderConfig, None),

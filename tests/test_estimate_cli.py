@@ -137,9 +137,7 @@ def test_bad_values_exit_2_naming_the_flag(tmp_path, capsys, extra, needle):
     assert not out.exists()
 
 
-@pytest.mark.parametrize(
-    "extra", [["--refine-basis", "2"], ["--no-flash-fit"], ["--max-shift", "0.1"], ["--refine-lobes"]]
-)
+@pytest.mark.parametrize("extra", [["--refine-basis", "2"], ["--max-shift", "0.1"], ["--refine-lobes"]])
 def test_flash_noflash_options_are_refused_with_lights(tmp_path, capsys, extra):
     out = tmp_path / "out"
     code = main(["estimate", "--lights", str(tmp_path), "--out", str(out), *extra])
@@ -150,6 +148,9 @@ def test_flash_noflash_options_are_refused_with_lights(tmp_path, capsys, extra):
         ["--lights", "d", "--out", "o", "--fov", "45", "--refine-steps", "0"]
     )
     cmd.check_light_flags(args)
+    # --no-flash-fit applies to both: for --lights it keeps the network's maps
+    args = subparser("estimate").parse_args(["--lights", "d", "--out", "o", "--no-flash-fit"])
+    assert cmd.check_light_flags(args).flash_fit is False
 
 
 def test_required_out_is_an_argparse_error():

@@ -91,7 +91,7 @@ def lights_predictor(bundle, data: Path, flash_fit: bool = True):
     ``flash_fit`` False: with ``--no-flash-fit`` (the network's maps at the working size)."""
     from ..data.store import sample_dirname
     from ..estimate.fivelight import FiveLightConfig, run_fivelight
-    from ..materials import load_material_dir
+    from ..materials import load_material_dir, resample_svbrdf
 
     meta = json.loads((data / "dataset.json").read_text())
     nominal = float(meta["config"]["capture"]["flash_intensity"])
@@ -109,7 +109,9 @@ def lights_predictor(bundle, data: Path, flash_fit: bool = True):
                 flash_fit=flash_fit,
             )
             run_fivelight(cfg, bundle=bundle)
-            return load_material_dir(out / "maps")
+            maps = load_material_dir(out / "maps")
+        size = tuple(item["maps"].shape[1:])  # the working size can differ from the data set's
+        return maps if maps.shape == size else resample_svbrdf(maps, size)
 
     return run
 

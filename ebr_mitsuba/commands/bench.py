@@ -23,9 +23,9 @@ against, and the PNG plots it links) and returns its path:
   ``EBR_FIVELIGHT_RUNS``, ``EBR_TRAIN_DATA``, ``EBR_SPLIT_DATA``).
 
 Default ``--out``: inside a checkout of ebr-mitsuba (the current directory or one above it holds
-the project's ``pyproject.toml``) the checkout's ``docs/bench`` (``docs`` for ``models`` and ``fivelight``), the pages
-the documentation links; anywhere else ``./ebr-bench``, so that a run elsewhere never writes into
-the installed package's source tree.
+the project's ``pyproject.toml``) the checkout's ``docs/bench`` (``docs`` for ``models`` and
+``fivelight``), the pages the documentation links; anywhere else ``./ebr-bench``, so that a run
+elsewhere never writes into the installed package's source tree.
 
 ``all`` runs every benchmark this version has. ``--quick`` runs a reduced version (small sizes and
 few iterations, under a minute each on two cores: a smoke test; its numbers are not the documented
@@ -104,7 +104,8 @@ def add_arguments(p) -> None:
         "--out",
         type=Path,
         default=None,
-        help="output folder (default: docs/bench of the checkout you are in, docs for 'models' and 'fivelight'; "
+        help="output folder (default: docs/bench of the checkout you are in, docs for 'models' and "
+        "'fivelight'; "
         f"./{OUTSIDE_CHECKOUT} outside a checkout)",
     )
     p.add_argument("--quick", action="store_true", help="reduced sizes, under a minute each: a smoke test")

@@ -75,7 +75,7 @@ class PhotometricConfig:
     )
     residual_max: float = option(
         0.06,
-        "above this relative residual the model does not explain the photos: the network's maps",
+        "above this relative residual the model does not explain the photos: the network's normals",
         above=0,
     )
     highlight_weight: float = option(

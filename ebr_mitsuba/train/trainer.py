@@ -201,7 +201,10 @@ class Trainer:
         self.caches = RunCaches(self.out, self.data, config, self.dist, bar)
 
     def close(self) -> None:
-        """Release the lock of ``--out`` (also done when :meth:`run` ends or fails)."""
+        """Release the lock of ``--out`` and turn torch's denormal flushing (process-wide, set by
+        the set-up) back off, its default, so that code after a run (``ebr train`` in a test, a
+        notebook) computes with denormals again (also done when :meth:`run` ends or fails)."""
+        torch.set_flush_denormal(False)
         if self._lock is not None:
             self._lock.release()
 
