@@ -639,6 +639,13 @@ def _page(
         "",
         "![mean per-map RMSE by class](models_classes.png)",
         "",
+        "## Five known lights",
+        "",
+        "The five-light dual-loss model, the paper's loss ablation (dual, parameter only, rendering "
+        "only) beside the paper's figures, and the comparison with this page's flash / no-flash model "
+        "on the same materials are measured on the five-light captures of this split by "
+        "`ebr bench fivelight`: [fivelight.md](fivelight.md).",
+        "",
         "## Contact sheet",
         "",
         "Per test sample (rows): the truth's normal, diffuse, specular and roughness, then the same four "
