@@ -157,27 +157,36 @@ def test_dualloss_config_refuses_ebrenv_tables(tmp_path):
 # -- ebr estimate --lights (deliverable 2) --------------------------------------------------------
 
 
+def _exposure(data: Path) -> float:
+    """The recorded exposure of sample 0 of ``data``."""
+    return float(json.loads((data / "samples" / "000000" / "sample.json").read_text())["camera"]["exposure"])
+
+
+def _estimate_sample(capsys, model, data: Path, out: Path, *extra):
+    """``ebr estimate --lights`` on sample 0's photos at its known light intensity (nominal 10 W/sr
+    × exposure, as capture.json would state it)."""
+    photos = data / "samples" / "000000" / "photos"
+    intensity = 10.0 * _exposure(data)
+    return _estimate(
+        capsys,
+        "--lights",
+        photos,
+        "--checkpoint",
+        model,
+        "--flash-intensity",
+        intensity,
+        *extra,
+        "--out",
+        out,
+    )
+
+
 def test_estimate_lights_on_a_data_set_sample_matches_the_network(dl_model, tiny5, tmp_path, capsys):
     """The photos of a data set sample, at its known light intensity (nominal × exposure, as
     capture.json would state it): the maps are the network's on the photos at the reference
     exposure (what training showed it), and every output is written."""
-    sample = tiny5 / "samples" / "000000"
-    record = json.loads((sample / "sample.json").read_text())
-    exposure = float(record["camera"]["exposure"])
-    intensity = 10.0 * exposure
-    out = tmp_path / "est"
-    code, summary, err = _estimate(
-        capsys,
-        "--lights",
-        sample / "photos",
-        "--checkpoint",
-        dl_model,
-        "--flash-intensity",
-        intensity,
-        "--no-flash-fit",
-        "--out",
-        out,
-    )
+    sample, exposure, out = tiny5 / "samples" / "000000", _exposure(tiny5), tmp_path / "est"
+    code, summary, err = _estimate_sample(capsys, dl_model, tiny5, out, "--no-flash-fit")
     assert code == 0, err
     assert summary["flash_fit"] is None
     assert summary["capture"] == "five-light" and summary["resolution"] == 32 and summary["model_grid"] == 32
@@ -219,20 +228,8 @@ def test_estimate_lights_fits_the_photos_by_default(dl_model, tiny5, tmp_path, c
     from ebr_mitsuba.geometry import NEAR_DISTANCE
     from ebr_mitsuba.imageio import read_image
 
-    sample = tiny5 / "samples" / "000000"
-    exposure = float(json.loads((sample / "sample.json").read_text())["camera"]["exposure"])
-    out = tmp_path / "est"
-    code, summary, err = _estimate(
-        capsys,
-        "--lights",
-        sample / "photos",
-        "--checkpoint",
-        dl_model,
-        "--flash-intensity",
-        10.0 * exposure,
-        "--out",
-        out,
-    )
+    sample, exposure, out = tiny5 / "samples" / "000000", _exposure(tiny5), tmp_path / "est"
+    code, summary, err = _estimate_sample(capsys, dl_model, tiny5, out)
     assert code == 0, err
     fit = summary["flash_fit"]
     assert set(fit) == {"flash_fit", "photometric_fraction", "residual", "fallback"}

@@ -160,8 +160,10 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
         for name, path in runs
     ]
     shipped = shipped_model_path()
+    card = None  # (parameters, MB) of the shipped model
     if shipped.is_file():
         model = load_dualloss(shipped)
+        card = (sum(p.numel() for p in model.dualloss.parameters()), shipped.stat().st_size / 1e6)
         predictors.append(("shipped model, ebr estimate --lights", lights_predictor(model, data)))
         predictors.append(
             ("shipped model, ebr estimate --lights --no-flash-fit", lights_predictor(model, data, False))
@@ -198,16 +200,9 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
     _sheet([_small(t) for t in truths], records, out_dir / "fivelight_maps.jpg")
     if summaries:
         _plot_loss(summaries, out_dir / "fivelight_loss.png")
-    page = _page(results, ebrenv, summaries, runs, ds, n, seconds, quick, shipped)
+    page = _page(results, ebrenv, summaries, runs, ds, n, seconds, quick, card)
     atomic_write_text(out_dir / "fivelight.md", page)
     return out_dir / "fivelight.md"
-
-
-def _params(path: Path) -> tuple[int, float]:
-    from ..model.predict import load_model
-
-    bundle = load_model(str(path), expect_kind="dualloss")
-    return sum(p.numel() for p in bundle.dualloss.parameters()), path.stat().st_size / 1e6
 
 
 def _ablation_lines(results: dict, runs: list[tuple[str, Path]]) -> list[str]:
@@ -228,7 +223,8 @@ def _ablation_lines(results: dict, runs: list[tuple[str, Path]]) -> list[str]:
     return lines + [""]
 
 
-def _page(results, ebrenv, summaries, runs, ds, n, seconds, quick, shipped) -> str:
+def _page(results, ebrenv, summaries, runs, ds, n, seconds, quick, card) -> str:
+    """The page; ``card``: (parameters, MB) of the shipped model, None when none is shipped."""
     head = "| predictor | normal | diffuse | roughness | specular | mean | re-render | SSIM | training |"
     rule = "|---|---:|---:|---:|---:|---:|---:|---:|---|"
     rows = []
@@ -267,8 +263,8 @@ def _page(results, ebrenv, summaries, runs, ds, n, seconds, quick, shipped) -> s
         "```",
         "",
     ]
-    if shipped.is_file():
-        count, mb = _params(shipped)
+    if card is not None:
+        count, mb = card
         lines += [
             "## The shipped model",
             "",
