@@ -284,6 +284,21 @@ def test_jitter_diffuse():
     assert np.allclose(hsv_to_rgb(rgb_to_hsv(rgb)), rgb, atol=1e-12)
 
 
+def test_jitter_saturation_and_contrast_each_act():
+    """The saturation and contrast factors of the dual-loss paper's colour jitter each do their own
+    job: saturation scales HSV saturation (hue and value kept), contrast scales the spread about
+    the mean luminance (the mean kept, up to clipping)."""
+    d = 0.2 + 0.6 * np.random.default_rng(5).random((16, 16, 3)).astype(np.float32)
+    s0 = rgb_to_hsv(d)
+    s1 = rgb_to_hsv(jitter_diffuse(d, saturation=0.5))
+    assert np.allclose(s1[..., 1], 0.5 * s0[..., 1], atol=1e-5)
+    assert np.allclose(s1[..., 2], s0[..., 2], atol=1e-5)
+    lum = lambda x: x @ LUMINANCE  # noqa: E731
+    c = jitter_diffuse(d, contrast=0.5)
+    assert abs(lum(c).mean() - lum(d).mean()) < 1e-5
+    assert np.allclose(lum(c) - lum(c).mean(), 0.5 * (lum(d) - lum(d).mean()), atol=1e-5)
+
+
 def test_blend_slope_space():
     m = make_material("leather", 4, 64)
     mask = random_mask(np.random.default_rng(1), 64, coverage=0.4)

@@ -256,8 +256,8 @@ def _page(results, ebrenv, summaries, runs, ds, n, seconds, quick, card) -> str:
         "(n+1)/2, roughness one channel) and their mean; re-render RMSE and SSIM under 30 seeded random "
         "point lights and views, none of them one of the five lights the models saw (held-out lights). "
         "Training data: `configs/data_real_five_light_train.toml` (the training split's real sets with "
-        "the paper's augmentations but its saturation and contrast jitter, procedural families, fast "
-        "renderer, 128²).",
+        "the paper's augmentations: crops, zooms, rotations, flips, hue / saturation / brightness / "
+        "contrast jitter, blends; procedural families, fast renderer, 128²).",
         "",
         "```",
         REGENERATE,
