@@ -107,6 +107,11 @@ def _weight():
     return option(1.0, "relative probability of this source", above=0)
 
 
+def _paths(meaning: str, kind: str):
+    """A required list of glob patterns naming asset files (``kind = "file"``) or folders (``"dir"``)."""
+    return option([], meaning, required=True, extra={"path": kind})
+
+
 def _split():
     return option(
         "all",
@@ -213,11 +218,8 @@ class DirectoryMaterials:
 
     type: str = option("directory", "source type")
     weight: float = _weight()
-    paths: list[str] = option(
-        [],
-        "material directories or Poly Haven / ambientCG texture sets (glob patterns allowed)",
-        required=True,
-        extra={"path": "dir"},
+    paths: list[str] = _paths(
+        "material directories or Poly Haven / ambientCG texture sets (glob patterns allowed)", "dir"
     )
     augment: bool = option(True, "random augmentation")
     blend: float = option(0.0, "probability of blending with a second material of the source", **_PROB)
@@ -240,12 +242,7 @@ class EquirectEnvironments:
 
     type: str = option("equirect", "source type")
     weight: float = _weight()
-    paths: list[str] = option(
-        [],
-        "equirectangular .hdr/.exr maps (glob patterns allowed)",
-        required=True,
-        extra={"path": "file"},
-    )
+    paths: list[str] = _paths("equirectangular .hdr/.exr maps (glob patterns allowed)", "file")
     split: str = _split()
     levels: list[str] = option(
         list(LEVELS),
@@ -263,7 +260,7 @@ class SGEnvironments:
 
     type: str = option("sg", "source type")
     weight: float = _weight()
-    paths: list[str] = option([], "env.json files", required=True, extra={"path": "file"})
+    paths: list[str] = _paths("env.json files", "file")
     levels: list[str] = option([], "intensity levels ([]: as in the file)", choices=LEVELS)
     rotate: bool = option(True, "random rotation about z")
 

@@ -93,36 +93,31 @@ class MAIRSize:
 
 
 _TINY_NAF = NAFNetSize(width=4, enc_blk_nums=(1, 1), middle_blk_num=1, dec_blk_nums=(1, 1))
+_PAPER_NORMAL = NAFNetSize(width=32, enc_blk_nums=(2, 2, 4, 8), middle_blk_num=12, dec_blk_nums=(2, 2, 2, 2))
+_PAPER_LIGHTING = NAFNetSize(width=32, enc_blk_nums=(1, 1, 2, 4), middle_blk_num=4, dec_blk_nums=(1, 1, 1, 1))
+
+# The presets side by side, one row per field of MAIRSize: (tiny, paper); "small" is the defaults.
+_PRESET_ROWS = {
+    "encoder_width": (4, 32),
+    "normal": (_TINY_NAF, _PAPER_NORMAL),
+    "lighting": (_TINY_NAF, _PAPER_LIGHTING),
+    "spec_hidden": (8, 64),
+    "spec_layers": (1, 2),
+    "spec_features": (4, 32),
+    "mva_dim": (8, 64),
+    "mva_heads": (2, 4),
+    "mva_depth": (1, 2),
+    "mva_mlp": (16, 256),
+    "brdf_features": (8, 64),
+    "refine": (
+        UNetSize(widths=(8, 16), depth=1, groups=4),
+        UNetSize(widths=(64, 128, 256, 512), depth=2, groups=16),
+    ),
+}
 MAIR_SIZE_PRESETS = {
-    "tiny": MAIRSize(
-        encoder_width=4,
-        normal=_TINY_NAF,
-        lighting=_TINY_NAF,
-        spec_hidden=8,
-        spec_layers=1,
-        spec_features=4,
-        mva_dim=8,
-        mva_heads=2,
-        mva_depth=1,
-        mva_mlp=16,
-        brdf_features=8,
-        refine=UNetSize(widths=(8, 16), depth=1, groups=4),
-    ),
+    "tiny": MAIRSize(**{name: row[0] for name, row in _PRESET_ROWS.items()}),
     "small": MAIRSize(),
-    "paper": MAIRSize(
-        encoder_width=32,
-        normal=NAFNetSize(width=32, enc_blk_nums=(2, 2, 4, 8), middle_blk_num=12, dec_blk_nums=(2, 2, 2, 2)),
-        lighting=NAFNetSize(width=32, enc_blk_nums=(1, 1, 2, 4), middle_blk_num=4, dec_blk_nums=(1, 1, 1, 1)),
-        spec_hidden=64,
-        spec_layers=2,
-        spec_features=32,
-        mva_dim=64,
-        mva_heads=4,
-        mva_depth=2,
-        mva_mlp=256,
-        brdf_features=64,
-        refine=UNetSize(widths=(64, 128, 256, 512), depth=2, groups=16),
-    ),
+    "paper": MAIRSize(**{name: row[1] for name, row in _PRESET_ROWS.items()}),
 }
 
 
