@@ -82,6 +82,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import tomllib
+
 from .errors import ConfigError, InputError
 
 _KEY = "ebr_mitsuba.typedconfig"
@@ -679,3 +681,22 @@ __all__ = [
     "type_name",
     "unknown_keys",
 ]
+
+
+def parse_toml(text: str, source) -> dict:
+    """The TOML document ``text`` (from ``source``, named in the error) as a dict; a syntax error is
+    one :class:`ConfigError` line."""
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{source}: not valid TOML ({exc})") from None
+
+
+def read_toml(path: Path) -> dict:
+    """The TOML file at ``path`` (which exists) as a dict; not UTF-8 or not TOML is one
+    :class:`ConfigError` line naming the file."""
+    try:
+        text = Path(path).read_text()
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not a UTF-8 text file; give a TOML config") from None
+    return parse_toml(text, path)

@@ -246,3 +246,26 @@ def test_every_config_class_is_frozen_and_checked():
         EstimateConfig(flash="f", out="o", fov=5)
     with pytest.raises(InputError, match="--flash-intensity: must be > 0"):
         FiveLightConfig(lights=("a",), out="o", light_intensity=0.0)
+
+
+def test_toml_files_fail_in_one_line_naming_the_file(tmp_path):
+    """Every TOML reader (generate, train, the test split) goes through read_toml / parse_toml."""
+    from ebr_mitsuba.data.config import load_config as load_generate
+    from ebr_mitsuba.data.split import load_split
+    from ebr_mitsuba.train.config import load_config as load_train
+    from ebr_mitsuba.typedconfig import parse_toml, read_toml
+
+    good = tmp_path / "good.toml"
+    good.write_text("[a]\nb = 1\n")
+    assert read_toml(good) == {"a": {"b": 1}} and parse_toml("x = 2", "s") == {"x": 2}
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[a\nb = ")
+    binary = tmp_path / "binary.toml"
+    binary.write_bytes(b"\xff\xfe\x00 = 1")
+    for load in (load_generate, load_train, load_split):
+        with pytest.raises(ConfigError, match=r"bad\.toml: not valid TOML") as err:
+            load(bad)
+        assert "\n" not in str(err.value)
+    for load in (load_generate, load_train, load_split):
+        with pytest.raises(ConfigError, match=r"binary\.toml: not a UTF-8 text file"):
+            load(binary)

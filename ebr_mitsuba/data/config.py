@@ -72,8 +72,6 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import tomllib
-
 from ..errors import ConfigError, InputError
 from ..geometry import DEFAULT_EXEMPLAR_ROUGHNESS, DEFAULT_FLASH_INTENSITY, SETUPS
 from ..procedural import ENV_KINDS, FAMILIES, INTENSITY_LEVELS
@@ -87,6 +85,7 @@ from ..typedconfig import (
     expand_path,
     meta_of,
     option,
+    read_toml,
     rows,
     unknown_keys,
 )
@@ -496,13 +495,7 @@ def resolve_config_path(spec: str | Path) -> Path:
 def load_config(path: str | Path) -> GenerateConfig:
     """Read and validate a TOML config file (or a bundled example given by its bare name)."""
     path = resolve_config_path(path)
-    try:
-        doc = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
-    except UnicodeDecodeError:
-        raise ConfigError(f"{path}: not a UTF-8 text file; give a TOML config") from None
-    return parse_config(doc, source=str(path), base_dir=path.resolve().parent)
+    return parse_config(read_toml(path), source=str(path), base_dir=path.resolve().parent)
 
 
 def schema_table() -> list[tuple[str, str, str, str]]:

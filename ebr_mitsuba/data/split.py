@@ -25,9 +25,8 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-import tomllib
-
 from ..errors import ConfigError, InputError
+from ..typedconfig import parse_toml, read_toml
 
 SPLIT_FORMAT = "ebr-test-split/1"
 SPLITS = ("train", "test", "all")
@@ -79,14 +78,13 @@ def load_split(path: str | None = None) -> TestSplit:
         file = importlib.resources.files("ebr_mitsuba.scenes") / "test_split.toml"
         text, source = file.read_text(), "scenes/test_split.toml"
     else:
-        try:
-            text, source = Path(path).read_text(), str(path)
-        except FileNotFoundError:
-            raise InputError(f"{path}: no such split file") from None
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{source}: not valid TOML ({exc})") from None
+        if not Path(path).is_file():
+            raise InputError(f"{path}: no such split file")
+        return _from_doc(read_toml(Path(path)), str(path))
+    return _from_doc(parse_toml(text, source), source)
+
+
+def _from_doc(doc: dict, source: str) -> TestSplit:
     table = doc.get("split")
     if not isinstance(table, dict) or table.get("name") != SPLIT_FORMAT:
         raise ConfigError(f'{source}: expected a [split] table with name = "{SPLIT_FORMAT}"')

@@ -55,10 +55,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import tomllib
-
 from ..errors import ConfigError
-from ..typedconfig import Meta, check, config, convert, document, expand_path, from_dict, option, unknown_keys
+from ..typedconfig import (
+    Meta,
+    check,
+    config,
+    convert,
+    document,
+    expand_path,
+    from_dict,
+    option,
+    read_toml,
+    unknown_keys,
+)
 
 KINDS = ("ebrenv", "dualloss")
 PHASES = ("lighting", "diffuse", "specular", "refinement", "finetune")
@@ -288,11 +297,7 @@ def load_config(path: str | Path) -> TrainConfig:
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"{path}: no such config file")
-    try:
-        doc = tomllib.loads(path.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
-    return parse_config(doc, source=path.name, base_dir=path.resolve().parent)
+    return parse_config(read_toml(path), source=path.name, base_dir=path.resolve().parent)
 
 
 def config_from_dict(data: dict) -> TrainConfig:
