@@ -76,15 +76,13 @@ def load_split(path: str | None = None) -> TestSplit:
     """The test split from ``path`` (default: the bundled ``scenes/test_split.toml``)."""
     if path is None:
         file = importlib.resources.files("ebr_mitsuba.scenes") / "test_split.toml"
-        text, source = file.read_text(), "scenes/test_split.toml"
+        source = "scenes/test_split.toml"
+        doc = parse_toml(file.read_text(), source)
     else:
         if not Path(path).is_file():
             raise InputError(f"{path}: no such split file")
-        return _from_doc(read_toml(Path(path)), str(path))
-    return _from_doc(parse_toml(text, source), source)
-
-
-def _from_doc(doc: dict, source: str) -> TestSplit:
+        source = str(path)
+        doc = read_toml(Path(path))
     table = doc.get("split")
     if not isinstance(table, dict) or table.get("name") != SPLIT_FORMAT:
         raise ConfigError(f'{source}: expected a [split] table with name = "{SPLIT_FORMAT}"')
