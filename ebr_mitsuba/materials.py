@@ -326,6 +326,34 @@ def from_metal_rough(
     return SVBRDF(normal=normal, diffuse=diffuse, specular=specular, roughness=r, source=source)
 
 
+def to_metal_rough(maps: SVBRDF) -> tuple[np.ndarray, np.ndarray]:
+    """The inverse of :func:`from_metal_rough`: ``(basecolor (H, W, 3), metallic (H, W))`` in [0, 1].
+
+    One metalness per pixel from the luminances D of the diffuse and S of the specular map:
+    S·(1 − m) = 0.04·(1 − m)² + D·m, the positive root, m = 0 where S ≤ 0.04 (a dielectric or a
+    specular map below any metal's). Base colour from the diffuse map, D / (1 − m), blended towards
+    the specular map's (S − 0.04·(1 − m)) / m with weight m² (the diffuse map carries nothing at
+    m → 1). Exact on maps that :func:`from_metal_rough` made; for other maps (an estimate) the
+    closest metal/rough reading, clipped to [0, 1].
+    """
+    from .colour import LUMINANCE_WEIGHTS
+
+    w = np.asarray(LUMINANCE_WEIGHTS, np.float64)
+    d = maps.diffuse.astype(np.float64)
+    s = maps.specular.astype(np.float64)
+    lum_d, lum_s = d @ w, s @ w
+    a = DIELECTRIC_F0
+    b = lum_d + lum_s - 2.0 * a
+    c = a - lum_s
+    root = (-b + np.sqrt(np.maximum(b * b - 4.0 * a * c, 0.0))) / (2.0 * a)
+    m = np.where(lum_s > a, np.clip(root, 0.0, 1.0), 0.0)
+    m3 = m[..., None]
+    from_diffuse = d / np.maximum(1.0 - m3, 1e-6)
+    from_specular = (s - a * (1.0 - m3)) / np.maximum(m3, 1e-6)
+    base = from_diffuse * (1.0 - m3**2) + from_specular * m3**2
+    return np.clip(base, 0.0, 1.0).astype(np.float32), m.astype(np.float32)
+
+
 # -- texture sets ---------------------------------------------------------------------------------
 
 # role → stem patterns (Poly Haven ``name_role_1k``, ambientCG ``Name_2K_Role``)

@@ -17,6 +17,9 @@ function                           definition (float64, over every pixel, channe
 :func:`map_rmse`                   RMSE per map (normals encoded (n + 1)/2, roughness one channel) and the
                                    mean of the four; ground truth of another size is area-resampled to the
                                    estimate's grid first
+:func:`metal_rough_rmse`           ``{"base colour", "metallic"}`` RMSE of both SVBRDFs read as glTF
+                                   metal/rough maps (:func:`ebr_mitsuba.materials.to_metal_rough`), resampled
+                                   as :func:`map_rmse`; the dual-loss paper's base colour / metallic figures
 =================================  ===========================================================================
 
 :func:`rel_rmse` judges (benchmarks, ``ebr validate``, ``ebr extract-sg``'s ``rel_rmse_exemplars``): a
@@ -97,10 +100,22 @@ def map_rmse(estimate, truth) -> dict[str, float]:
     return out
 
 
+def metal_rough_rmse(estimate, truth) -> dict[str, float]:
+    """``{"base colour", "metallic"}`` RMSE of ``estimate`` against ``truth`` (SVBRDFs), both read as
+    metal/rough maps (module docstring)."""
+    from .materials import resample_svbrdf, to_metal_rough
+
+    if truth.shape != estimate.shape:
+        truth = resample_svbrdf(truth, estimate.shape)
+    (base_e, metal_e), (base_t, metal_t) = to_metal_rough(estimate), to_metal_rough(truth)
+    return {"base colour": rmse(base_e, base_t), "metallic": rmse(metal_e, metal_t)}
+
+
 __all__ = [
     "image_errors",
     "lighting_error",
     "map_rmse",
+    "metal_rough_rmse",
     "noise_corrected_rel_rmse",
     "rel_rmse",
     "rms",

@@ -5,6 +5,7 @@ are meaningless; the tests check what is scored and written."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +42,8 @@ def test_quick_page_scores_every_run_and_baseline(runs, tiny5, tmp_path, monkeyp
         f"dual loss={runs['dual']}; parameter loss only={runs['params']}; rendering loss only={runs['dual']}",
     )
     monkeypatch.delenv("EBR_SPLIT_DATA", raising=False)
+    models_page = "# Models\n\nabove\n\n## Five known lights\n\nold text\n\n## Contact sheet\n\nbelow\n"
+    (tmp_path / "models.md").write_text(models_page)
     path = bench.run(tmp_path, quick=True, log=lambda msg: None)
     page = path.read_text()
     for row in ("| dual loss |", "| parameter loss only |", "| rendering loss only |", "| oracle constant |"):
@@ -52,6 +55,19 @@ def test_quick_page_scores_every_run_and_baseline(runs, tiny5, tmp_path, monkeyp
     assert "normal RMSE" in page and "≤ 0.03" in page
     assert (tmp_path / "fivelight_maps.jpg").stat().st_size > 0
     assert (tmp_path / "fivelight_loss.png").stat().st_size > 0
+    # the ablation beside the paper's figures, also in the models.md beside the page (the rest kept)
+    ablation = json.loads((tmp_path / "fivelight.json").read_text())
+    assert list(ablation["runs"]) == ["dual loss", "parameter loss only", "rendering loss only"]
+    dual = ablation["runs"]["dual loss"]
+    assert 0 <= dual["metal_rough"]["metallic"] <= 1 and dual["steps"] == 2
+    models = (tmp_path / "models.md").read_text()
+    assert "old text" not in models and models.startswith("# Models\n\nabove\n\n## Five known lights")
+    assert models.endswith("## Contact sheet\n\nbelow\n")
+    for text in (models, page):
+        assert "| paper, dual loss (their test set) |" in text and "its test set differs" in models
+        assert f"| dual loss | {dual['per_map_rmse']['normal']:.4f} |" in text
+        assert f"{dual['metal_rough']['base colour']:.4f} | {dual['metal_rough']['metallic']:.4f}" in text
+    assert "No ablation measured yet" in "\n".join(bench.models_section(None))
 
 
 def test_refuses_a_missing_data_set_and_a_bad_run_list(runs, tiny5, tmp_path, monkeypatch, capsys):

@@ -350,6 +350,37 @@ def test_from_metal_rough_follows_gltf():
         mat.from_metal_rough(base, metal * 2, rough, source="tex")
 
 
+def test_to_metal_rough_inverts_from_metal_rough():
+    rng = np.random.default_rng(3)
+    base = rng.uniform(0.0, 1.0, (6, 7, 3)).astype(np.float32)
+    metal = rng.uniform(0.0, 1.0, (6, 7)).astype(np.float32)
+    metal[0, :3] = [0.0, 1.0, 0.999]  # the ends: a dielectric, a pure metal, nearly one
+    rough = rng.uniform(0.1, 0.9, (6, 7)).astype(np.float32)
+    s = mat.from_metal_rough(base, metal, rough)
+    got_base, got_metal = mat.to_metal_rough(s)
+    np.testing.assert_allclose(got_metal, metal, atol=1e-4)
+    np.testing.assert_allclose(got_base, base, atol=1e-3)
+    # an estimate no metal/rough set made: a specular map below 0.04 reads as a dielectric
+    dull = SVBRDF.uniform(2, 2, diffuse=(0.5, 0.4, 0.3), specular=0.02)
+    b, m = mat.to_metal_rough(dull)
+    np.testing.assert_array_equal(m, 0.0)
+    np.testing.assert_allclose(b, np.broadcast_to([0.5, 0.4, 0.3], (2, 2, 3)), atol=1e-6)
+
+
+def test_metal_rough_rmse_compares_the_metal_rough_reading():
+    from ebr_mitsuba.metrics import metal_rough_rmse
+
+    base = np.full((4, 4, 3), 0.6, np.float32)
+    rough = np.full((4, 4), 0.4, np.float32)
+    a = mat.from_metal_rough(base, np.zeros((4, 4), np.float32), rough)
+    b = mat.from_metal_rough(base, np.full((4, 4), 0.5, np.float32), rough)
+    same = metal_rough_rmse(a, a)
+    assert same == {"base colour": 0.0, "metallic": 0.0}
+    out = metal_rough_rmse(b, a)
+    assert out["metallic"] == pytest.approx(0.5, abs=1e-4)
+    assert out["base colour"] == pytest.approx(0.0, abs=1e-3)
+
+
 # -- shared texture sets --------------------------------------------------------------------------
 
 

@@ -437,8 +437,18 @@ def test_bench_models_page(tiny, tiny_model, tmp_path, monkeypatch):
     monkeypatch.setenv("EBR_CANDIDATES", f"previous={tiny_model}")
     monkeypatch.setattr(inference, "shipped_model_path", lambda: tiny_model)
     assert models.unavailable() is None
+    run = {"per_map_rmse": dict.fromkeys(("normal", "diffuse", "roughness", "specular", "mean"), 0.5)}
+    run |= {"metal_rough": {"base colour": 0.25, "metallic": 0.125}, "rerender_rmse": 0.75, "ssim": 0.5}
+    run |= {"steps": 7, "hours": 0.5}
+    ablation = {"date": "today", "machine": "here", "n": 3, "quick": False, "runs": {"dual loss": run}}
+    (tmp_path / "docs").mkdir()
+    (tmp_path / "docs" / "fivelight.json").write_text(json.dumps(ablation))  # ebr bench fivelight's
     page = models.run(tmp_path / "docs", quick=True, log=lambda msg: None)
     text = page.read_text()
+    assert (
+        "| dual loss | 0.5000 | 0.5000 | 0.5000 | 0.5000 | 0.5000 | 0.2500 | 0.1250 | 0.7500 | 7 steps"
+        in text
+    )
     for row in (
         "| shipped model |",
         "| previous |",

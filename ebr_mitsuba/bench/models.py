@@ -466,7 +466,11 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
     summary = training_summary(Path(run_dir)) if run_dir else None
     if summary:
         _plot_loss(summary, out_dir / "models_loss.png")
-    page = _page(results, ds, n, seconds, quick, summary, run_dir, verdict, check)
+    from .fivelight import read_ablation  # (fivelight imports this module)
+
+    # the five-light ablation of `ebr bench fivelight`: beside this page, else the one in docs/
+    ablation = read_ablation(out_dir, Path(__file__).resolve().parents[2] / DEFAULT_OUT)
+    page = _page(results, ds, n, seconds, quick, summary, run_dir, verdict, check, ablation)
     atomic_write_text(out_dir / "models.md", page)
     atomic_write_text(
         out_dir / "models.json",
@@ -563,8 +567,11 @@ def _page(
     run_dir: str | None = None,
     verdict: dict | None = None,
     check: dict | None = None,
+    ablation: dict | None = None,
 ) -> str:
+    """The page; ``ablation``: the five-light ablation (``fivelight.json``), None when not measured."""
     from ..data.split import load_split
+    from .fivelight import models_section
 
     split = load_split()
     head = (
@@ -639,13 +646,7 @@ def _page(
         "",
         "![mean per-map RMSE by class](models_classes.png)",
         "",
-        "## Five known lights",
-        "",
-        "The five-light dual-loss model, the paper's loss ablation (dual, parameter only, rendering "
-        "only) beside the paper's figures, and the comparison with this page's flash / no-flash model "
-        "on the same materials are measured on the five-light captures of this split by "
-        "`ebr bench fivelight`: [fivelight.md](fivelight.md).",
-        "",
+        *models_section(ablation),
         "## Contact sheet",
         "",
         "Per test sample (rows): the truth's normal, diffuse, specular and roughness, then the same four "

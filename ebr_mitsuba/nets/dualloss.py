@@ -34,12 +34,12 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..errors import InputError
+from ..materials import DIELECTRIC_F0
 from ..typedconfig import config, from_dict, option
 from .maps import Maps
 from .transforms import LOG_EPS, NORMAL_Z_MIN, log_input
 
 OUTPUT_MODES = {"diffuse_specular": 10, "basecolor_metallic": 8}
-DIELECTRIC_F0 = 0.04
 
 
 def basecolor_metallic_to_diffuse_specular(basecolor: torch.Tensor, metallic: torch.Tensor):
