@@ -39,14 +39,12 @@ import numpy as np
 
 from ..errors import InputError
 from ._common import machine
+from .ablation import ABLATION_FILE, PAPER, ablation_lines, ablation_table, models_section, read_ablation
 from .models import _recording, _row, _sheet, _small, training_summary
 
 DEFAULT_OUT = "docs"
 QUICK_LIMIT = 2
-ABLATION_FILE = "fivelight.json"  # the ablation's figures, for models.md (:func:`models_section`)
 NORMAL_TARGET = 0.03  # issue 14: the shipped model's normal RMSE at most this
-# The dual-loss paper (Boss et al. 2018), RMSE on its 29 real materials (another test set).
-PAPER = {"base colour": 0.0808, "normal": 0.0201, "roughness": 0.0343, "metallic": 0.0629}
 REGENERATE = """\
 export EBR_DATA_DIR=../shared/data EBR_FIVELIGHT_DATA=/tmp/ebr-data/real5_test \\
        EBR_TRAIN_DATA=/tmp/ebr-data/real5_train
@@ -244,62 +242,6 @@ def _ablation_record(
     return {"date": time.strftime("%Y-%m-%d"), "machine": machine(), "n": n, "quick": quick, "runs": rows}
 
 
-def models_section(ablation: dict | None) -> list[str]:
-    """The "Five known lights" section of ``models.md``: the loss ablation beside the paper's
-    figures (from ``fivelight.json``; None: a pointer to ``ebr bench fivelight`` only)."""
-    lines = ["## Five known lights", ""]
-    link = (
-        "The five-light dual-loss model, its estimate path and the comparison with this page's flash / "
-        "no-flash model on the same materials: [fivelight.md](fivelight.md) (`ebr bench fivelight`)."
-    )
-    if not ablation or not ablation.get("runs"):
-        return lines + [link, "", "(No ablation measured yet: run `ebr bench fivelight`.)", ""]
-    verdict = _ablation_lines(ablation["runs"], list(ablation["runs"]))
-    return lines + [
-        link,
-        "",
-        f"The paper's loss ablation, measured by `ebr bench fivelight` on {ablation['date']} "
-        f"({ablation['machine']}) on the {ablation['n']} five-light captures of this test split's "
-        "materials (no environment, 256², Mitsuba): the same U-Net, data and steps "
-        "(`configs/dualloss_real*.toml`), trained with the dual loss, the parameter loss only and the "
-        "rendering loss only. Per-map RMSE as above; base colour / metallic are both maps read as glTF "
-        "metal/rough (`ebr_mitsuba.metrics.metal_rough_rmse`), the paper's map convention; the re-render "
-        "is under 30 seeded point lights and views none of the five lights the models saw."
-        + (" **Quick run, not the documented figures.**" if ablation.get("quick") else ""),
-        "",
-        *_ablation_table(ablation),
-        *verdict,
-        "The paper's row is for orientation only: **its test set differs** (29 hand-picked real materials "
-        "photographed, 512², base colour / metallic maps) and its network is paper-size, trained on a "
-        "GPU on 815 texture sets; ours is small, trained on two CPU cores on this toolkit's real and "
-        "procedural sets.",
-        "",
-    ]
-
-
-def _ablation_table(ablation: dict) -> list[str]:
-    """The ablation runs' figures and the paper's row, one table."""
-    cols = ("normal", "diffuse", "roughness", "specular", "mean")
-    head = (
-        "| loss (Boss et al. 2018 ablation) | normal | diffuse | roughness | specular | mean | base colour "
-        "| metallic | held-out re-render | training |"
-    )
-    rule = "|---|---:|---:|---:|---:|---:|---:|---:|---:|---|"
-    rows = []
-    for name, r in ablation["runs"].items():
-        pm, mr = r["per_map_rmse"], r["metal_rough"]
-        cells = " | ".join(f"{pm[k]:.4f}" for k in cols)
-        rows.append(
-            f"| {name} | {cells} | {mr['base colour']:.4f} | {mr['metallic']:.4f} | "
-            f"{r['rerender_rmse']:.4f} | {r['steps']} steps, {r['hours']:.2f} h |"
-        )
-    rows.append(
-        f"| paper, dual loss (their test set) | {PAPER['normal']:.4f} | | {PAPER['roughness']:.4f} | | | "
-        f"{PAPER['base colour']:.4f} | {PAPER['metallic']:.4f} | | GPU, 815 texture sets |"
-    )
-    return [head, rule, *rows, ""]
-
-
 def _update_models_page(path: Path, ablation: dict) -> None:
     """Rewrite the "Five known lights" section of an existing ``models.md`` in ``out_dir`` with this
     run's ablation (the rest of the page, from ``ebr bench models``, is kept as it is)."""
@@ -315,32 +257,6 @@ def _update_models_page(path: Path, ablation: dict) -> None:
     end = len(text) if end < 0 else end
     section = "\n".join(models_section(ablation)).rstrip("\n")
     atomic_write_text(path, text[: start + 1] + section + "\n" + text[end:])
-
-
-def read_ablation(*dirs: Path) -> dict | None:
-    """The first ``fivelight.json`` found in ``dirs`` (None when none is)."""
-    for d in dirs:
-        f = Path(d) / ABLATION_FILE
-        if f.is_file():
-            return json.loads(f.read_text())
-    return None
-
-
-def _ablation_lines(results: dict, names: list[str]) -> list[str]:
-    if len(names) < 3 or not names[0].startswith("dual"):
-        return ["(The ablation needs three runs in EBR_FIVELIGHT_RUNS, the dual loss first.)", ""]
-    dual, others = results[names[0]], [results[k] for k in names[1:]]
-    lines = []
-    for key, label in (("mean", "mean per-map RMSE"), (None, "held-out-light re-render RMSE")):
-        d = dual["per_map_rmse"][key] if key else dual["rerender_rmse"]
-        vals = [o["per_map_rmse"][key] if key else o["rerender_rmse"] for o in others]
-        wins = all(d < v for v in vals)
-        parts = ", ".join(f"{nm} {v:.4f} ({(d - v) / v:+.0%})" for nm, v in zip(names[1:], vals))
-        lines.append(
-            f"- **{label}**: dual {d:.4f} against {parts} — the dual loss "
-            + ("beats both single losses." if wins else "does **not** beat both single losses.")
-        )
-    return lines + [""]
 
 
 def _page(results, ebrenv, summaries, runs, ds, n, seconds, quick, card, ablation) -> str:
@@ -400,7 +316,7 @@ def _page(results, ebrenv, summaries, runs, ds, n, seconds, quick, card, ablatio
     lines += [
         "## The loss ablation (same data, network and steps)",
         "",
-        *_ablation_lines(results, [name for name, _ in runs]),
+        *ablation_lines(results, [name for name, _ in runs]),
     ]
     if summaries:
         lines += ["![training loss of the three runs](fivelight_loss.png)", ""]
@@ -415,7 +331,7 @@ def _page(results, ebrenv, summaries, runs, ds, n, seconds, quick, card, ablatio
         "and metallic; below both are read as metal/rough maps), so the numbers are for orientation "
         'only. The same table is in [models.md](models.md) ("Five known lights").',
         "",
-        *(_ablation_table(ablation) if ablation["runs"] else []),
+        *(ablation_table(ablation) if ablation["runs"] else []),
         "## Contact sheet",
         "",
         "Per test sample (rows): the truth's normal, diffuse, specular and roughness, then the same four "

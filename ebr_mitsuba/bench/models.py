@@ -466,7 +466,7 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
     summary = training_summary(Path(run_dir)) if run_dir else None
     if summary:
         _plot_loss(summary, out_dir / "models_loss.png")
-    from .fivelight import read_ablation  # (fivelight imports this module)
+    from .ablation import read_ablation
 
     # the five-light ablation of `ebr bench fivelight`: beside this page, else the one in docs/
     ablation = read_ablation(out_dir, Path(__file__).resolve().parents[2] / DEFAULT_OUT)
@@ -571,7 +571,7 @@ def _page(
 ) -> str:
     """The page; ``ablation``: the five-light ablation (``fivelight.json``), None when not measured."""
     from ..data.split import load_split
-    from .fivelight import models_section
+    from .ablation import models_section
 
     split = load_split()
     head = (
