@@ -1,0 +1,16 @@
+"""Unit figures of ``ebr bench models`` that need no data set."""
+
+from __future__ import annotations
+
+import pytest
+
+from ebr_mitsuba.bench.models import normal_structure
+
+
+def test_normal_structure_caps_each_sample_at_the_truth():
+    # a flat estimate of a flat truth has all the structure there is; more than the truth counts as 1
+    assert normal_structure([0.02, 0.2], [0.1, 0.1]) == pytest.approx((0.2 + 1.0) / 2)
+    # one nearly flat truth (a brushed metal) cannot lift nearly flat estimates elsewhere
+    flat_elsewhere = normal_structure([0.026, 0.003, 0.003], [0.004, 0.2, 0.15])
+    assert flat_elsewhere == pytest.approx((1.0 + 0.015 + 0.02) / 3)
+    assert flat_elsewhere < 0.5
