@@ -92,8 +92,13 @@ def config_sections() -> list[tuple[str, str, type, object]]:
     """(title, key prefix, config class, preset or None) of every documented config, in pipeline
     order."""
     from .capture import CaptureConfig
+    from .commands.bench import BenchConfig
+    from .commands.dataset import SheetConfig
     from .commands.demo import DemoConfig
+    from .commands.gallery import GalleryConfig
+    from .commands.generate import GenerateRunConfig
     from .commands.render import RenderConfig
+    from .commands.train import TrainRunConfig
     from .data import config as data
     from .envfit import EnvFitConfig
     from .estimate.fivelight import FiveLightConfig
@@ -110,7 +115,8 @@ def config_sections() -> list[tuple[str, str, type, object]]:
     from .train import config as train
     from .validate import ValidateConfig
 
-    out = [(f"`ebr generate` [{name}]", f"{name}.", cls, None) for name, cls in data.SECTIONS.items()]
+    out = [("`ebr generate` command line (GenerateRunConfig)", "", GenerateRunConfig, None)]
+    out += [(f"`ebr generate` [{name}]", f"{name}.", cls, None) for name, cls in data.SECTIONS.items()]
     out += [
         (f"`ebr generate` [[materials]] type = {t!r}", "", c, None) for t, c in data.MATERIAL_TYPES.items()
     ]
@@ -119,6 +125,7 @@ def config_sections() -> list[tuple[str, str, type, object]]:
         for t, c in data.ENVIRONMENT_TYPES.items()
     ]
     out += [
+        ("`ebr dataset sheet` (SheetConfig)", "", SheetConfig, None),
         ("`ebr capture` (CaptureConfig)", "", CaptureConfig, None),
         ("`ebr fit-env` (EnvFitConfig)", "", EnvFitConfig, None),
         ("`ebr exemplars` (ExemplarsConfig)", "", ExemplarsConfig, None),
@@ -132,7 +139,10 @@ def config_sections() -> list[tuple[str, str, type, object]]:
         ("`ebr insert` (InsertConfig)", "", InsertConfig, None),
         ("`ebr demo` (DemoConfig)", "", DemoConfig, None),
         ("`ebr render` (RenderConfig)", "", RenderConfig, None),
+        ("`ebr gallery` (GalleryConfig)", "", GalleryConfig, None),
         ("`ebr validate` (ValidateConfig)", "", ValidateConfig, None),
+        ("`ebr bench` (BenchConfig)", "", BenchConfig, None),
+        ("`ebr train` command line (TrainRunConfig)", "", TrainRunConfig, None),
     ]
     out += [(f"`ebr train` [{name}]", f"{name}.", cls, None) for name, cls in train.TABLES.items()]
     out += [

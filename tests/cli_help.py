@@ -10,9 +10,12 @@ from ebr_mitsuba.cli import build_parser
 
 
 def subparser(name: str) -> argparse.ArgumentParser:
-    """The parser of ``ebr NAME``."""
-    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
-    return sub.choices[name]
+    """The parser of ``ebr NAME`` (``"dataset sheet"``: the parser of a subcommand's action)."""
+    parser = build_parser()
+    for word in name.split():
+        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        parser = sub.choices[word]
+    return parser
 
 
 def help_entries(parser: argparse.ArgumentParser) -> dict[str, str]:

@@ -1,8 +1,10 @@
-"""``ebr capture``, ``fit-env``, ``exemplars``, ``render``, ``validate`` and ``demo`` build their
-options from typed configs (issue 11): the defaults ``--help`` shows and the parser holds are the
-configs' defaults, every option but the command's own inputs is a config field, the config built
-from no flags is the config's default, and a bad value is one line, exit 2. Nothing is rendered
-here: the commands fail on the bad value before any work."""
+"""``ebr capture``, ``fit-env``, ``exemplars``, ``render``, ``validate``, ``demo``, ``gallery``,
+``generate``, ``train``, ``dataset sheet`` and ``bench`` build their options from typed configs
+(issue 11): the defaults ``--help`` shows and the parser holds are the configs' defaults, every
+option but the command's own inputs is a config field, the config built from no flags is the
+config's default, and a bad value is one line, exit 2. Nothing is rendered here: the commands fail
+on the bad value before any work.
+"""
 
 from __future__ import annotations
 
@@ -15,8 +17,13 @@ from cli_help import help_entries, subparser
 from ebr_mitsuba import typedconfig as tc
 from ebr_mitsuba.capture import CAPTURE_FLAGS, CaptureConfig
 from ebr_mitsuba.cli import main
+from ebr_mitsuba.commands.bench import BENCH_FLAGS, BenchConfig
+from ebr_mitsuba.commands.dataset import SHEET_FLAGS, SheetConfig
 from ebr_mitsuba.commands.demo import DEMO_FLAGS, DemoConfig
+from ebr_mitsuba.commands.gallery import GALLERY_FLAGS, GalleryConfig
+from ebr_mitsuba.commands.generate import GENERATE_FLAGS, GenerateRunConfig
 from ebr_mitsuba.commands.render import RENDER_FLAGS, RenderConfig
+from ebr_mitsuba.commands.train import TRAIN_FLAGS, TrainRunConfig
 from ebr_mitsuba.envfit import ENVFIT_FLAGS, EnvFitConfig
 from ebr_mitsuba.errors import ConfigError, InputError
 from ebr_mitsuba.exemplar.images import EXEMPLARS_FLAGS, ExemplarsConfig
@@ -37,6 +44,11 @@ COMMANDS = {
     "render": (RenderConfig, RENDER_FLAGS, {"--out", "-D"}, ["default", "--out", "o.exr"]),
     "validate": (ValidateConfig, VALIDATE_FLAGS, {"--case", "--markdown"}, []),
     "demo": (DemoConfig, DEMO_FLAGS, set(), []),
+    "gallery": (GalleryConfig, GALLERY_FLAGS, set(), ["photos"]),
+    "generate": (GenerateRunConfig, GENERATE_FLAGS, {"--out"}, ["c.toml", "--out", "o"]),
+    "train": (TrainRunConfig, TRAIN_FLAGS, set(), ["c.toml"]),
+    "dataset sheet": (SheetConfig, SHEET_FLAGS, {"--out"}, ["d", "--out", "s.png"]),
+    "bench": (BenchConfig, BENCH_FLAGS, set(), []),
 }
 
 
@@ -97,6 +109,16 @@ def test_defaults_spelled_out():
     assert ValidateConfig().spp == 131072 and "[131072]" in entries["validate"]["--spp"]
     assert DemoConfig() == DemoConfig(out="ebr-demo", res=None, spp=64, refine_steps=100)
     assert "[the model grid]" in entries["demo"]["--res"]
+    assert GalleryConfig() == GalleryConfig(docs="docs", checkpoint=None, refine_steps=0)
+    assert "[docs]" in entries["gallery"]["--docs"] and "[0]" in entries["gallery"]["--refine-steps"]
+    assert GenerateRunConfig() == GenerateRunConfig(
+        count=None, workers=1, resume=False, ray=None, shard_size=4
+    )
+    assert "[1]" in entries["generate"]["--workers"] and "[4]" in entries["generate"]["--shard-size"]
+    assert TrainRunConfig() == TrainRunConfig(out=None, resume=False, export=None)
+    assert "[runs/<config name>]" in entries["train"]["--out"]
+    assert SheetConfig().samples == 16 and "[16]" in entries["dataset sheet"]["--samples"]
+    assert BenchConfig() == BenchConfig(out=None, quick=False)
 
 
 def test_flags_set_the_fields():
@@ -120,6 +142,22 @@ def test_flags_set_the_fields():
     assert tc.from_args(RenderConfig, args, RENDER_FLAGS).spp == 8
     args = subparser("demo").parse_args(["--res", "32", "--refine-steps", "0", "--checkpoint", "m.pt"])
     assert tc.from_args(DemoConfig, args, DEMO_FLAGS) == DemoConfig(res=32, refine_steps=0, checkpoint="m.pt")
+    args = subparser("generate").parse_args(
+        COMMANDS["generate"][3] + ["--count", "5", "--workers", "2", "--resume", "--ray", "auto"]
+    )
+    assert tc.from_args(GenerateRunConfig, args, GENERATE_FLAGS) == GenerateRunConfig(
+        count=5, workers=2, resume=True, ray="auto"
+    )
+    args = subparser("train").parse_args(["c.toml", "--out", "r", "--resume", "--export", "m.pt"])
+    assert tc.from_args(TrainRunConfig, args, TRAIN_FLAGS) == TrainRunConfig(
+        out="r", resume=True, export="m.pt"
+    )
+    args = subparser("gallery").parse_args(["photos", "--docs", "d", "--refine-steps", "3"])
+    assert tc.from_args(GalleryConfig, args, GALLERY_FLAGS) == GalleryConfig(docs="d", refine_steps=3)
+    args = subparser("dataset sheet").parse_args(COMMANDS["dataset sheet"][3] + ["--samples", "3"])
+    assert tc.from_args(SheetConfig, args, SHEET_FLAGS) == SheetConfig(samples=3)
+    args = subparser("bench").parse_args(["renderer", "--out", "b", "--quick"])
+    assert tc.from_args(BenchConfig, args, BENCH_FLAGS) == BenchConfig(out="b", quick=True)
 
 
 @pytest.mark.parametrize(
@@ -139,6 +177,11 @@ def test_flags_set_the_fields():
         (["validate", "--seed", "x"], "--seed 'x': give an integer"),
         (["demo", "--spp", "0"], "--spp: must be >= 1, got 0"),
         (["demo", "--refine-steps", "-1"], "--refine-steps: must be >= 0"),
+        (["gallery", "photos", "--refine-steps", "-1"], "--refine-steps: must be >= 0, got -1"),
+        (["generate", "c.toml", "--out", "o", "--workers", "0"], "--workers: must be >= 1, got 0"),
+        (["generate", "c.toml", "--out", "o", "--count", "0"], "--count: must be >= 1, got 0"),
+        (["generate", "c.toml", "--out", "o", "--shard-size", "x"], "--shard-size 'x': give an integer"),
+        (["dataset", "sheet", "d", "--out", "s.png", "--samples", "0"], "--samples: must be >= 1, got 0"),
     ],
 )
 def test_bad_value_is_one_line_exit_2(tmp_path, monkeypatch, capsys, argv, needle):

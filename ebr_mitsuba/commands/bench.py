@@ -27,10 +27,11 @@ the project's ``pyproject.toml``) the checkout's ``docs/bench`` (``docs`` for ``
 ``fivelight``), the pages the documentation links; anywhere else ``./ebr-bench``, so that a run
 elsewhere never writes into the installed package's source tree.
 
-``all`` runs every benchmark this version has. ``--quick`` runs a reduced version (small sizes and
-few iterations, under a minute each on two cores: a smoke test; its numbers are not the documented
-ones). ``--json`` prints ``{"written": {name: path}, "seconds": {name: s}}``. Timings depend on the
-machine and its load: regenerate the pages on a quiet machine.
+``--out`` and ``--quick`` are the fields of :class:`BenchConfig` (flags, defaults and help generated
+from its metadata). ``all`` runs every benchmark this version has. ``--quick`` runs a reduced
+version (small sizes and few iterations, under a minute each on two cores: a smoke test; its numbers
+are not the documented ones). ``--json`` prints ``{"written": {name: path}, "seconds": {name: s}}``.
+Timings depend on the machine and its load: regenerate the pages on a quiet machine.
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ from pathlib import Path
 import tomllib
 
 from ..errors import InputError
+from ..typedconfig import add_flags, config, from_args, option
 from ._common import emit_json, say
 
 NAME = "bench"
@@ -54,6 +56,25 @@ HELP = "measure speed against error; write the benchmark pages (docs/bench/*.md 
 BENCHMARKS = ("renderer", "generate", "extract-sg", "estimate", "models", "fivelight")
 OUTSIDE_CHECKOUT = Path("ebr-bench")
 PROJECT = "ebr-mitsuba"
+
+
+@config(error=InputError, cli=True)
+class BenchConfig:
+    """The options of ``ebr bench`` (a bad value is an :class:`~ebr_mitsuba.errors.InputError`
+    naming the flag)."""
+
+    out: str | None = option(
+        None,
+        "output folder",
+        metavar="OUT",
+        shown=f"docs/bench of the checkout you are in, docs for 'models' and 'fivelight'; "
+        f"./{OUTSIDE_CHECKOUT} outside a checkout",
+    )
+    quick: bool = option(False, "reduced sizes, under a minute each: a smoke test")
+
+
+#: The fields ``ebr bench`` sets from its flags (:func:`ebr_mitsuba.typedconfig.add_flags`).
+BENCH_FLAGS = ("out", "quick")
 
 
 def _module_name(name: str) -> str:
@@ -100,19 +121,13 @@ def add_arguments(p) -> None:
         metavar="{" + ",".join(names) + "}",
         help="benchmark to run (default: all)",
     )
-    p.add_argument(
-        "--out",
-        type=Path,
-        default=None,
-        help="output folder (default: docs/bench of the checkout you are in, docs for 'models' and "
-        "'fivelight'; "
-        f"./{OUTSIDE_CHECKOUT} outside a checkout)",
-    )
-    p.add_argument("--quick", action="store_true", help="reduced sizes, under a minute each: a smoke test")
+    # The BenchConfig options: values read as text and checked by from_args (one line, exit 2).
+    add_flags(p, BenchConfig, BENCH_FLAGS)
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
 
 
 def run(args) -> int:
+    cfg = from_args(BenchConfig, args, BENCH_FLAGS)
     have = available()
     if args.which != "all" and args.which not in have:
         if args.which in BENCHMARKS:
@@ -126,10 +141,10 @@ def run(args) -> int:
         if reason and args.which == "all":
             say(f"[bench] {name}: skipped ({reason})")
             continue
-        kwargs = {"quick": True} if args.quick and "quick" in inspect.signature(module.run).parameters else {}
+        kwargs = {"quick": True} if cfg.quick and "quick" in inspect.signature(module.run).parameters else {}
         say(f"[bench] {name} ...")
         t0 = time.perf_counter()
-        out = args.out if args.out is not None else default_out(name)
+        out = Path(cfg.out) if cfg.out is not None else default_out(name)
         path = module.run(out, **kwargs)
         seconds[name] = time.perf_counter() - t0
         written[name] = str(path)

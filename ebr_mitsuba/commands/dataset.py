@@ -9,15 +9,31 @@ NaN/Inf, env.json valid); prints every problem on stderr and exits 2 if there is
 --json prints {"root", "ok", "samples", "errors", "notes"}.
 
 sheet: a contact sheet (matplotlib PNG) of --samples samples evenly spread over the data set: the
-four maps, the photos, a flash-only image and the exemplars, one row per sample.
+four maps, the photos, a flash-only image and the exemplars, one row per sample. ``--samples`` is
+the field of :class:`SheetConfig` (flag, default and help generated from its metadata; a bad value
+is one line naming the flag, exit 2).
 """
 
 from __future__ import annotations
 
+from ..errors import InputError
+from ..typedconfig import add_flags, config, from_args, option
 from ._common import emit_json, say
 
 NAME = "dataset"
 HELP = "verify a generated data set or draw its contact sheet"
+
+
+@config(error=InputError, cli=True)
+class SheetConfig:
+    """The options of ``ebr dataset sheet`` (a bad value is an
+    :class:`~ebr_mitsuba.errors.InputError` naming the flag)."""
+
+    samples: int = option(16, "rows: samples evenly spread over the data set", minimum=1)
+
+
+#: The fields ``ebr dataset sheet`` sets from its flags (:func:`ebr_mitsuba.typedconfig.add_flags`).
+SHEET_FLAGS = ("samples",)
 
 
 def add_arguments(parser) -> None:
@@ -28,7 +44,8 @@ def add_arguments(parser) -> None:
     s = sub.add_parser("sheet", help="draw a contact sheet (PNG)")
     s.add_argument("dir", metavar="DIR", help="data-set directory")
     s.add_argument("--out", required=True, metavar="sheet.png", help="output PNG")
-    s.add_argument("--samples", type=int, default=16, help="rows (default 16)")
+    # The SheetConfig options: values read as text and checked by from_args (one line, exit 2).
+    add_flags(s, SheetConfig, SHEET_FLAGS)
 
 
 def run(args) -> int:
@@ -52,6 +69,7 @@ def run(args) -> int:
         return 2
     from ..data.sheet import contact_sheet
 
-    out = contact_sheet(args.dir, args.out, samples=args.samples)
+    cfg = from_args(SheetConfig, args, SHEET_FLAGS)
+    out = contact_sheet(args.dir, args.out, samples=cfg.samples)
     say(f"wrote {out}")
     return 0

@@ -2,40 +2,54 @@
 
   ebr gallery PHOTOS_DIR [--docs DIR] [--checkpoint C] [--refine-steps N] [--json]
 
-Runs ``ebr estimate`` in flash-only mode on every PNG/JPEG/EXR photo of PHOTOS_DIR (for the
-bundled set: ../shared/data/photos/flash_only, 13 phone photos) and writes DIR/gallery.md with one
-picture strip per photo under DIR/gallery/ (input, re-render, the four maps, a relit render).
-Defaults: --docs docs, --refine-steps 0. ``--json`` prints {"page", "photos": [{"name", "image",
-"rel_rmse", "seconds", "warnings", "flash_intensity"}]}.
+Runs ``ebr estimate`` in flash-only mode on every PNG/JPEG/EXR photo of PHOTOS_DIR (for the bundled
+set: ../shared/data/photos/flash_only, 13 phone photos) and writes DIR/gallery.md with one picture
+strip per photo under DIR/gallery/ (input, re-render, the four maps, a relit render). The options
+are the fields of :class:`GalleryConfig` (flags, defaults and help generated from its metadata); a
+bad value is one line naming the flag (exit 2). ``--json`` prints {"page", "photos": [{"name",
+"image", "rel_rmse", "seconds", "warnings", "flash_intensity"}]}.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
+from ..errors import InputError
+from ..typedconfig import add_flags, config, from_args, option
 from ._common import emit_json, say
 
 NAME = "gallery"
 HELP = "flash-only estimates of a folder of photos as a docs gallery page"
 
 
+@config(error=InputError, cli=True)
+class GalleryConfig:
+    """The options of ``ebr gallery`` (a bad value is an :class:`~ebr_mitsuba.errors.InputError`
+    naming the flag)."""
+
+    docs: str = option("docs", "docs folder to write into", metavar="DIR")
+    checkpoint: str | None = option(None, "model checkpoint", metavar="C", shown="the shipped model")
+    refine_steps: int = option(0, "refinement steps per photo", minimum=0, flag="--refine-steps")
+
+
+#: The fields ``ebr gallery`` sets from its flags (:func:`ebr_mitsuba.typedconfig.add_flags`).
+GALLERY_FLAGS = ("docs", "checkpoint", "refine_steps")
+
+
 def add_arguments(parser) -> None:
     parser.add_argument("photos", metavar="PHOTOS_DIR", help="folder of flash-only photos")
-    parser.add_argument("--docs", default="docs", metavar="DIR", help="docs folder to write into [docs]")
-    parser.add_argument("--checkpoint", metavar="C", help="model checkpoint (default: the shipped model)")
-    parser.add_argument("--refine-steps", type=int, default=0, help="refinement steps per photo [0]")
+    # The GalleryConfig options: values read as text and checked by from_args (one line, exit 2).
+    add_flags(parser, GalleryConfig, GALLERY_FLAGS)
     parser.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
 
 
 def run(args) -> int:
-    from ..errors import InputError
     from ..estimate.gallery import build_gallery
 
-    if args.refine_steps < 0:
-        raise InputError("--refine-steps must be >= 0")
-    if args.checkpoint is not None and not Path(args.checkpoint).is_file():
-        raise InputError(f"--checkpoint {args.checkpoint}: no such file; omit it for the shipped model")
-    result = build_gallery(Path(args.photos), Path(args.docs), args.checkpoint, args.refine_steps, log=say)
+    cfg = from_args(GalleryConfig, args, GALLERY_FLAGS)
+    if cfg.checkpoint is not None and not Path(cfg.checkpoint).is_file():
+        raise InputError(f"--checkpoint {cfg.checkpoint}: no such file; omit it for the shipped model")
+    result = build_gallery(Path(args.photos), Path(cfg.docs), cfg.checkpoint, cfg.refine_steps, log=say)
     if args.json:
         emit_json(result)
     else:

@@ -13,6 +13,9 @@ DIR receives dataset.json, config.toml, index.json, envs/ (SG fits of the maps),
 (wall times: the only file that differs between runs) and samples/NNNNNN/ (photos, flash-only
 images, exemplars, ground-truth maps, env.json, sample.json, manifest.json).
 
+``--count`` … ``--shard-size`` are the fields of :class:`GenerateRunConfig` (flags, defaults and
+help generated from its metadata; a bad value is one line naming the flag, exit 2):
+
   --count N       number of samples (overrides dataset.count)
   --workers N     processes (spawn), each single-threaded; the files do not depend on N
   --resume        complete (or extend to --count) an interrupted data set of the same config;
@@ -33,30 +36,41 @@ sample; --resume finishes the set.
 from __future__ import annotations
 
 from ..data.generate import DEFAULT_SHARD_SIZE
+from ..errors import InputError
+from ..typedconfig import add_flags, config, from_args, option
 from ._common import emit_json, say
 
 NAME = "generate"
 HELP = "generate a data set (photos, exemplars, ground truth) from a TOML config"
 
 
+@config(error=InputError, cli=True)
+class GenerateRunConfig:
+    """How ``ebr generate`` runs (the data set itself is the TOML config's
+    :class:`~ebr_mitsuba.data.config.GenerateConfig`; a bad value is an
+    :class:`~ebr_mitsuba.errors.InputError` naming the flag)."""
+
+    count: int | None = option(None, "number of samples", minimum=1, shown="dataset.count")
+    workers: int = option(1, "worker processes", minimum=1)
+    resume: bool = option(False, "complete an interrupted data set")
+    ray: str | None = option(
+        None,
+        "run on a Ray cluster: ADDRESS, auto, or local (needs the package's [ray] extra)",
+        metavar="ADDRESS",
+        shown="none",
+    )
+    shard_size: int = option(DEFAULT_SHARD_SIZE, "samples per Ray task", minimum=1)
+
+
+#: The fields ``ebr generate`` sets from its flags (:func:`ebr_mitsuba.typedconfig.add_flags`).
+GENERATE_FLAGS = ("count", "workers", "resume", "ray", "shard_size")
+
+
 def add_arguments(parser) -> None:
     parser.add_argument("config", metavar="CONFIG.toml", help="data-set config (see docs/generate.md)")
     parser.add_argument("--out", required=True, metavar="DIR", help="output data-set directory")
-    parser.add_argument("--count", type=int, default=None, help="number of samples (default: dataset.count)")
-    parser.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
-    parser.add_argument("--resume", action="store_true", help="complete an interrupted data set")
-    parser.add_argument(
-        "--ray",
-        default=None,
-        metavar="ADDRESS",
-        help="run on a Ray cluster: ADDRESS, auto, or local (needs ebr-mitsuba[ray])",
-    )
-    parser.add_argument(
-        "--shard-size",
-        type=int,
-        default=DEFAULT_SHARD_SIZE,
-        help=f"samples per Ray task (default {DEFAULT_SHARD_SIZE})",
-    )
+    # The GenerateRunConfig options: values read as text and checked by from_args (one line, exit 2).
+    add_flags(parser, GenerateRunConfig, GENERATE_FLAGS)
     parser.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
 
 
@@ -65,18 +79,19 @@ def run(args) -> int:
     from ..data.generate import generate
     from ..fsutil import sigterm_as_exit
 
-    config = load_config(args.config)
-    if args.count is not None:
-        config = config.with_count(args.count)
+    run_cfg = from_args(GenerateRunConfig, args, GENERATE_FLAGS)
+    data_config = load_config(args.config)
+    if run_cfg.count is not None:
+        data_config = data_config.with_count(run_cfg.count)
     # SIGTERM stops the workers and removes half-written files
     with sigterm_as_exit("ebr generate: terminated (SIGTERM); complete samples are kept: --resume finishes"):
         summary = generate(
-            config,
+            data_config,
             args.out,
-            workers=args.workers,
-            resume=args.resume,
-            ray=args.ray,
-            shard_size=args.shard_size,
+            workers=run_cfg.workers,
+            resume=run_cfg.resume,
+            ray=run_cfg.ray,
+            shard_size=run_cfg.shard_size,
             progress=True,
             say=say,
         )

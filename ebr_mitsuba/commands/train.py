@@ -13,7 +13,8 @@ The config (schema: docs/train.md, defaults in ebr_mitsuba/train/config.py) name
   summary.json   per-phase steps, final losses and seconds
   cache/         per-sample exemplar selections and extracted SGs (reused by --resume)
 
-Options:
+Options (``--out``, ``--resume`` and ``--export`` are the fields of :class:`TrainRunConfig`: flags,
+defaults and help generated from its metadata):
   --out DIR      output directory (new, empty, or a run stopped before its first checkpoint,
                  which starts over; a run with a checkpoint needs --resume)
   --resume       continue the run in DIR from last.pt (same config); a finished run only
@@ -35,42 +36,55 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..errors import InputError
+from ..typedconfig import add_flags, config, from_args, option
 from ._common import emit_json, progress, say
 
 NAME = "train"
 HELP = "train the networks from a TOML config (two stages, checkpoints, resume, DDP)"
 
 
+@config(error=InputError, cli=True)
+class TrainRunConfig:
+    """How ``ebr train`` runs (the training itself is the TOML config's
+    :class:`~ebr_mitsuba.train.config.TrainConfig`; a bad value is an
+    :class:`~ebr_mitsuba.errors.InputError` naming the flag)."""
+
+    out: str | None = option(None, "output directory", metavar="DIR", shown="runs/<config name>")
+    resume: bool = option(False, "continue the run in --out from last.pt")
+    export: str | None = option(
+        None, "also write a deployable float16 copy of the final model to FILE", metavar="FILE", shown="none"
+    )
+
+
+#: The fields ``ebr train`` sets from its flags (:func:`ebr_mitsuba.typedconfig.add_flags`).
+TRAIN_FLAGS = ("out", "resume", "export")
+
+
 def add_arguments(parser) -> None:
     parser.add_argument("config", help="training config (TOML), e.g. configs/train_small.toml")
-    parser.add_argument("--out", default=None, help="output directory [runs/<config name>]")
-    parser.add_argument("--resume", action="store_true", help="continue the run in --out from last.pt")
-    parser.add_argument(
-        "--export",
-        default=None,
-        metavar="FILE",
-        help="also write a deployable float16 copy of the final model to FILE",
-    )
+    # The TrainRunConfig options: values read as text and checked by from_args (one line, exit 2).
+    add_flags(parser, TrainRunConfig, TRAIN_FLAGS)
     parser.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
 
 
 def run(args) -> int:
-    from ..errors import InputError
     from ..fsutil import sigterm_as_exit
     from ..model.checkpoint import export_model
     from ..train.config import load_config
     from ..train.ddp import shutdown
     from ..train.trainer import Trainer
 
-    config = load_config(args.config)
-    if args.export and not Path(args.export).resolve().parent.is_dir():
+    run_cfg = from_args(TrainRunConfig, args, TRAIN_FLAGS)
+    train_config = load_config(args.config)
+    if run_cfg.export and not Path(run_cfg.export).resolve().parent.is_dir():
         raise InputError(
-            f"--export {args.export}: its folder does not exist; create it or choose another path"
+            f"--export {run_cfg.export}: its folder does not exist; create it or choose another path"
         )
-    out = Path(args.out) if args.out else Path("runs") / Path(args.config).stem
+    out = Path(run_cfg.out) if run_cfg.out else Path("runs") / Path(args.config).stem
     # SIGTERM: the atomic checkpoint write in progress removes its temporary, the lock is released
     with sigterm_as_exit("ebr train: terminated (SIGTERM); --resume continues from the last checkpoint"):
-        trainer = Trainer(config, out, resume=args.resume, log=say, progress=progress)
+        trainer = Trainer(train_config, out, resume=run_cfg.resume, log=say, progress=progress)
         try:
             summary = trainer.run()
         finally:
@@ -78,8 +92,8 @@ def run(args) -> int:
             shutdown(trainer.dist)
     if trainer.dist.main:
         say(f"wrote {out / 'model.pt'} ({summary.get('seconds', 0):.0f} s, {summary.get('samples')} samples)")
-        if args.export:
-            path = export_model(out / "model.pt", args.export)
+        if run_cfg.export:
+            path = export_model(out / "model.pt", run_cfg.export)
             say(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB, float16)")
         if args.json:
             emit_json(summary)
