@@ -20,7 +20,26 @@ function                           definition (float64, over every pixel, channe
 :func:`metal_rough_rmse`           ``{"base colour", "metallic"}`` RMSE of both SVBRDFs read as glTF
                                    metal/rough maps (:func:`ebr_mitsuba.materials.to_metal_rough`), resampled
                                    as :func:`map_rmse`; the dual-loss paper's base colour / metallic figures
+:func:`rerender_metrics`           (re-render RMSE, SSIM) of two SVBRDFs (same grid) under the seeded
+                                   :func:`rerender_pairs` (below)
+:func:`sample_metrics`             ``{"per_map_rmse", "rerender_rmse", "ssim"}`` of one estimate
+                                   (:func:`map_rmse` of the keys ``MAP_KEYS``, :func:`rerender_metrics`)
+:func:`average`                    the mean of :func:`sample_metrics` rows (``ebr eval``'s summary)
 =================================  ===========================================================================
+
+The evaluation protocol of ``ebr eval`` and the benches (:mod:`ebr_mitsuba.evaluation`):
+
+* re-render RMSE: the estimated and the true maps rendered under the same ``RERENDER_PAIRS`` = 30
+  seeded random light/view pairs (cosine-hemisphere directions, light and camera at distance
+  2.14 from the sample centre, one isotropic point light of the data set's flash intensity, no
+  environment; :func:`ebr_mitsuba.nets.losses.sample_view_light_pairs` with no forced
+  highlights, the exact torch mirror of the BRDF), RMSE over all pixels, channels and pairs of
+  the linear renders;
+* SSIM (:func:`ebr_mitsuba.extract.msssim.ssim`, 11-pixel Gaussian windows) of the same renders
+  sRGB-encoded after clipping to [0, 1], averaged over the pairs.
+
+The pairs depend on ``seed`` only (default 0), so every model is measured on the same renders.
+This module imports numpy only; the re-render metrics import torch when called.
 
 :func:`rel_rmse` judges (benchmarks, ``ebr validate``, ``ebr extract-sg``'s ``rel_rmse_exemplars``): a
 broken render must lose, hence ``inf``. :func:`image_errors` reports (``ebr estimate``, ``ebr demo``):
@@ -29,7 +48,18 @@ a value that does not exist is ``nan``.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
+
+from .geometry import DEFAULT_FLASH_INTENSITY
+
+if TYPE_CHECKING:
+    from .nets.losses import ViewLightPairs
+    from .svbrdf import SVBRDF
+
+RERENDER_PAIRS = 30
+MAP_KEYS = ("normal", "diffuse", "roughness", "specular", "mean")
 
 
 def rmse(a: np.ndarray, b: np.ndarray) -> float:
@@ -111,13 +141,80 @@ def metal_rough_rmse(estimate, truth) -> dict[str, float]:
     return {"base colour": rmse(base_e, base_t), "metallic": rmse(metal_e, metal_t)}
 
 
+def rerender_pairs(seed: int = 0, count: int = RERENDER_PAIRS) -> ViewLightPairs:
+    """The seeded light/view pairs of the re-render metric (batch of one)."""
+    import torch
+
+    from .nets.losses import sample_view_light_pairs
+
+    return sample_view_light_pairs(1, torch.Generator().manual_seed(seed), count=count, highlights=0)
+
+
+def rerenders(maps: SVBRDF, pairs: ViewLightPairs, intensity: float = DEFAULT_FLASH_INTENSITY) -> np.ndarray:
+    """(count, H, W, 3) linear renders of ``maps`` under the pairs."""
+    import torch
+
+    from .nets import Maps
+    from .nets import torch_brdf as tb
+
+    with torch.no_grad():
+        m = Maps.from_svbrdf([maps])
+        out = [
+            tb.render_point_light(m, pairs.lights[:, k], intensity, pairs.cameras[:, k])[0]
+            for k in range(pairs.count)
+        ]
+        return torch.stack(out).permute(0, 2, 3, 1).numpy()
+
+
+def rerender_metrics(
+    estimate: SVBRDF, truth: SVBRDF, pairs: ViewLightPairs, intensity: float = DEFAULT_FLASH_INTENSITY
+) -> tuple[float, float]:
+    """(re-render RMSE, mean SSIM) of ``estimate`` against ``truth`` (same grid)."""
+    from .extract.msssim import ssim_many
+    from .imageio import linear_to_srgb
+
+    a, b = rerenders(estimate, pairs, intensity), rerenders(truth, pairs, intensity)
+    sa, sb = linear_to_srgb(np.clip(a, 0, 1)), linear_to_srgb(np.clip(b, 0, 1))
+    return rmse(a, b), float(np.mean(ssim_many(sa, sb, data_range=1.0)))
+
+
+def sample_metrics(
+    estimate: SVBRDF, truth: SVBRDF, pairs: ViewLightPairs, intensity: float = DEFAULT_FLASH_INTENSITY
+) -> dict:
+    """``{"per_map_rmse": {...}, "rerender_rmse", "ssim"}`` of one sample."""
+    err, s = rerender_metrics(estimate, truth, pairs, intensity)
+    per_map = map_rmse(estimate, truth)
+    return {"per_map_rmse": {k: per_map[k] for k in MAP_KEYS}, "rerender_rmse": err, "ssim": s}
+
+
+def average(rows: list[dict]) -> dict:
+    """Mean of :func:`sample_metrics` rows (plus ``seconds_per_sample`` when the rows have
+    ``seconds``) and ``n``."""
+    out = {
+        "per_map_rmse": {k: float(np.mean([r["per_map_rmse"][k] for r in rows])) for k in MAP_KEYS},
+        "rerender_rmse": float(np.mean([r["rerender_rmse"] for r in rows])),
+        "ssim": float(np.mean([r["ssim"] for r in rows])),
+    }
+    if rows and "seconds" in rows[0]:
+        out["seconds_per_sample"] = float(np.mean([r["seconds"] for r in rows]))
+    out["n"] = len(rows)
+    return out
+
+
 __all__ = [
+    "MAP_KEYS",
+    "RERENDER_PAIRS",
+    "average",
     "image_errors",
     "lighting_error",
     "map_rmse",
     "metal_rough_rmse",
     "noise_corrected_rel_rmse",
     "rel_rmse",
+    "rerender_metrics",
+    "rerender_pairs",
+    "rerenders",
     "rms",
     "rmse",
+    "sample_metrics",
 ]

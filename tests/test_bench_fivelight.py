@@ -86,9 +86,9 @@ def test_refuses_a_missing_data_set_and_a_bad_run_list(runs, tiny5, tmp_path, mo
 
 def test_eval_of_a_finer_data_set_runs_the_model_at_its_grid(runs):
     """Photos finer than the model grid are area-averaged to it and the maps area-resampled back."""
+    from ebr_mitsuba.evaluation.evaluate import model_predictor
     from ebr_mitsuba.materials import resample_svbrdf
     from ebr_mitsuba.model.predict import load_model
-    from ebr_mitsuba.train.evaluate import model_predictor
 
     bundle = load_model(str(runs["dual"] / "model.pt"), expect_kind="dualloss")
     grid = bundle.resolution

@@ -167,9 +167,9 @@ def test_center_square_crop_of_a_non_square_set():
 
 
 def test_oracle_constant_is_the_truths_mean_and_scores_its_spread():
+    from ebr_mitsuba.evaluation.baselines import oracle_constant
     from ebr_mitsuba.metrics import map_rmse
     from ebr_mitsuba.svbrdf import SVBRDF
-    from ebr_mitsuba.train.baselines import oracle_constant
 
     rng = np.random.default_rng(3)
     h = w = 8
@@ -186,7 +186,7 @@ def test_oracle_constant_is_the_truths_mean_and_scores_its_spread():
 
 
 def test_material_class_of_rows():
-    from ebr_mitsuba.train.evaluate import material_class
+    from ebr_mitsuba.evaluation.evaluate import material_class
 
     assert material_class({"material": "procedural:tiles:12"}) == "procedural:tiles"
     assert material_class({"material": str(SHARED / "materials" / "Metal009")}) == "metal"

@@ -311,9 +311,9 @@ def measure_errors_in_process(predictor, capture_dir: Path, sizes) -> dict[int, 
     grid size through ``predict``) against its truth. ``predictor``: a
     :class:`~ebr_mitsuba.model.predictor.StagedPredictor`."""
     from ..estimate import fullres
-    from ..estimate.metrics import map_rmse
     from ..imageio import read_exr, resize_area
     from ..materials import load_material
+    from ..metrics import map_rmse
 
     g = predictor.grid
     truth = load_material(capture_dir / "maps")
@@ -725,9 +725,9 @@ def markdown(
 def run(out_dir: Path, quick: bool = False, progress: Callable[[str], None] | None = None) -> Path:
     """Run the benchmark; write ``out_dir/estimate.md`` and its plots; return the Markdown path."""
     from ..capture import capture
-    from ..estimate.metrics import map_rmse
     from ..fsutil import atomic_write_text
     from ..materials import load_material
+    from ..metrics import map_rmse
     from ..model.predict import load_predictor
     from ..variant import ensure_variant
 

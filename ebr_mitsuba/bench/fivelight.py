@@ -5,7 +5,7 @@ baselines on the five-light captures of the fixed test split; writes ``fivelight
 Test captures: ``configs/data_real_five_light_test.toml`` (the 18 real material sets of
 ``scenes/test_split.toml``, as captured; the camera and five lights of ``ebr capture --setup
 five-light``; no environment; Mitsuba 256 spp at 256²). Metrics as ``ebr bench models``
-(:mod:`ebr_mitsuba.train.metrics`): per-map RMSE and their mean, re-render RMSE and SSIM under 30
+(:mod:`ebr_mitsuba.metrics`): per-map RMSE and their mean, re-render RMSE and SSIM under 30
 seeded random point lights and views — none of them one of the five lights the model saw, so the
 re-render is on *held-out lights*. Predictors, all on the same samples and lights:
 
@@ -139,10 +139,10 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
     from ..commands._common import progress
     from ..data.dataset import GeneratedDataset
     from ..estimate.fivelight import load_dualloss, shipped_model_path
+    from ..evaluation.baselines import MeanMaps
+    from ..evaluation.evaluate import _truth, estimate_predictor, evaluate, model_predictor, oracle_predictor
     from ..fsutil import atomic_write_text
     from ..model.predict import load_model
-    from ..train.baselines import MeanMaps
-    from ..train.evaluate import _truth, estimate_predictor, evaluate, model_predictor, oracle_predictor
 
     reason = unavailable()
     if reason:
@@ -213,8 +213,8 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
 
 def _metal_rough_recording(predict, store: list):
     """Wrap a predictor: keep each estimate's base colour / metallic RMSE against the truth."""
+    from ..evaluation.evaluate import _truth
     from ..metrics import metal_rough_rmse
-    from ..train.evaluate import _truth
 
     def run(item, names):
         est = predict(item, names)

@@ -6,13 +6,13 @@ and ``models_loss.png``.
 The protocol is EBREnv's Table 1, near field: test captures of the real material sets and HDR maps
 of ``scenes/test_split.toml`` (``configs/data_real_test.toml``: Mitsuba, 256 spp, 256²), per-map
 RMSE (normals as (n+1)/2, roughness one channel) and their mean, re-render RMSE and SSIM under 30
-seeded held-out point lights (:mod:`ebr_mitsuba.train.metrics`), per material class, all
+seeded held-out point lights (:mod:`ebr_mitsuba.metrics`), per material class, all
 predictors on the same samples and lights:
 
 * the shipped model (``ebr_mitsuba/models``), and every checkpoint named in ``EBR_CANDIDATES``
   (``name=path`` separated by ``;``: a new model, the previous model, the model without exemplars);
 * the oracle constant: each sample's own ground-truth mean maps
-  (:func:`ebr_mitsuba.train.baselines.oracle_constant`);
+  (:func:`ebr_mitsuba.evaluation.baselines.oracle_constant`);
 * the training-set mean maps (``EBR_TRAIN_DATA``, when set);
 * the shipped model as ``ebr estimate`` runs it on each test capture's photo files (its working
   size, the full-resolution cascade, the known flash intensity), and the same estimates after
@@ -371,10 +371,8 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
     from ..commands._common import progress
     from ..data.dataset import GeneratedDataset
     from ..estimate.refine import RefineConfig
-    from ..fsutil import atomic_write_text
-    from ..model.predict import load_model, load_predictor
-    from ..train.baselines import MeanMaps
-    from ..train.evaluate import (
+    from ..evaluation.baselines import MeanMaps
+    from ..evaluation.evaluate import (
         _truth,
         estimate_predictor,
         evaluate,
@@ -384,6 +382,8 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
         model_predictor,
         oracle_predictor,
     )
+    from ..fsutil import atomic_write_text
+    from ..model.predict import load_model, load_predictor
 
     data = os.environ.get("EBR_SPLIT_DATA")
     if not data or not Path(data).is_dir():

@@ -85,9 +85,8 @@ def _line(name: str, m: dict) -> str:
 
 def run(args) -> int:
     from ..errors import InputError
-    from ..model.predict import load_model
-    from ..train.baselines import MeanMaps
-    from ..train.evaluate import (
+    from ..evaluation.baselines import MeanMaps
+    from ..evaluation.evaluate import (
         evaluate,
         group_means,
         material_class,
@@ -95,6 +94,7 @@ def run(args) -> int:
         model_predictor,
         oracle_predictor,
     )
+    from ..model.predict import load_model
 
     if args.limit < 0:
         raise InputError(f"--limit {args.limit}: give a count >= 0")

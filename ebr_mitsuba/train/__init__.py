@@ -1,6 +1,6 @@
-"""Training and evaluation of the networks (``ebr train``, ``ebr eval``).
+"""Training of the networks (``ebr train``).
 
-The model they train and score (networks, checkpoints, the cascade's renders, prediction) lives in
+The model it trains (networks, checkpoints, the cascade's renders, prediction) lives in
 :mod:`ebr_mitsuba.model`.
 
 ==============  ===================================================================================
@@ -12,10 +12,9 @@ module          contents
 ``phases``      the training phases (lighting, diffuse, specular, refinement, finetune, dualloss)
 ``trainer``     the training loop: phases, losses, CSV log, progress, resume
 ``ddp``         data-parallel training under ``torchrun`` (gloo on CPU)
-``metrics``     per-map RMSE, re-render RMSE and SSIM
-``baselines``   the mean-maps baseline
-``evaluate``    a model or baseline over a data set (``ebr eval``)
 ==============  ===================================================================================
+
+Scoring a trained model (``ebr eval``, the benches) is :mod:`ebr_mitsuba.evaluation`.
 
 Importing this package imports nothing heavy; the modules import torch (and Mitsuba when they
 render).

@@ -2,7 +2,7 @@
 
 For each sample the model sees the photos only (an ``ebrenv`` model the flash / no-flash pair
 through :meth:`ebr_mitsuba.model.predict.ModelPredictor.predict`, a ``dualloss`` model the five
-light shots) and its maps are scored against the ground truth with :mod:`.metrics`. ``seconds``
+light shots) and its maps are scored against the ground truth with :mod:`ebr_mitsuba.metrics`. ``seconds``
 per sample is the wall time of the prediction alone (lighting, extraction, selection and the
 cascade for ``ebrenv``).
 """
@@ -16,9 +16,9 @@ from pathlib import Path
 
 import torch
 
+from .. import metrics
 from ..errors import InputError
 from ..svbrdf import SVBRDF
-from . import metrics
 
 
 def _truth(item: dict) -> SVBRDF:
@@ -140,7 +140,8 @@ def evaluate(
     intensity: float | None = None,
     progress=None,
 ) -> dict:
-    """Per-sample and averaged metrics (:mod:`.metrics`) of ``predictor`` on the data set ``data``."""
+    """Per-sample and averaged metrics (:mod:`ebr_mitsuba.metrics`) of ``predictor`` on the data set
+    ``data``."""
     return evaluate_many(
         lambda item, names: {"": predictor(item, names)},
         data,
