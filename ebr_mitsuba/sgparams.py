@@ -1,6 +1,7 @@
 """Spherical-Gaussian lobes as unconstrained parameters for gradient descent, and back.
 
-The SG optimisers (``ebr extract-sg``'s Adam stage, ``ebr fit-env``) work on
+The SG optimisers (``ebr extract-sg``'s Adam stage, ``ebr fit-env``, the lobes of the test-time
+refinement, :mod:`ebr_mitsuba.estimate.refine`) work on
 
 =================  =====================================  ==================================================
 parameter          from a lobe (:func:`encode`)           back to a lobe (:func:`decode`, :func:`dr_decode`)
@@ -15,7 +16,9 @@ the range the extraction's initial lobes are clipped to, :mod:`ebr_mitsuba.extra
 floored at 1e-12 before the log. ``bounded=False`` drops the λ clamp on both sides: ``ebr fit-env`` fits an
 environment map directly and has always run unclamped; its lobes leave those bounds (measured on
 the maps of ``shared/data/envmaps`` and three of ``envmaps_extra``, 8 and 32 lobes: λ from 0.06 to
-3·10⁴), so clamping it would change its fits.
+3·10⁴), so clamping it would change its fits. The refinement (``--refine-lobes``) runs unbounded
+too: it starts from the lobes it is given (extracted or read from an env.json) and has always
+left their sharpness free.
 """
 
 from __future__ import annotations

@@ -33,6 +33,7 @@ import numpy as np
 
 from .. import __version__
 from ..errors import InputError
+from ..exemplar import exemplar_material_json
 from ..fsutil import atomic_write_text, output_lock, remove_stale_temporaries
 from . import ray_backend, store
 from . import workers as workers_mod  # (``workers`` is the worker count here)
@@ -115,7 +116,7 @@ def sample_meta(plan: Plan, draw: SampleDraw) -> dict:
         "camera": draw.camera.record(),
         "shots": shots,
         "exemplars": {
-            "material": {"diffuse": 0.1, "specular": 0.2, "normal": [0.0, 0.0, 1.0]},
+            "material": exemplar_material_json(),
             "camera": list(near.camera),
             "fov": near.fov,
             "flash_intensity": cfg.capture.flash_intensity,

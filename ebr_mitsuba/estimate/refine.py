@@ -80,6 +80,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .. import sgparams
 from ..errors import InputError
 from ..geometry import Shot
 from ..metrics import image_errors
@@ -484,13 +485,11 @@ class _Params:
         return mi.TensorXf(spec, (h, w, 3)), mi.TensorXf(rgh, (h, w))
 
     def lobes_of(self, p):
-        import drjit as dr
-
         from ..render import DrLobes
 
         if not self.lobes:
             return DrLobes.from_env(self.env if self.env is not None else SGEnvironment.empty())
-        return DrLobes(p["axis"], dr.exp(p["log_sharpness"]), dr.exp(p["log_amplitude"]))
+        return DrLobes(p["axis"], *sgparams.dr_decode(p["log_sharpness"], p["log_amplitude"], bounded=False))
 
 
 def basis_params(maps: SVBRDF, k_count: int, iterations: int = 10) -> dict[str, np.ndarray]:
@@ -528,12 +527,17 @@ def basis_params(maps: SVBRDF, k_count: int, iterations: int = 10) -> dict[str, 
 
 
 def lobe_params(env: SGEnvironment) -> dict:
+    """The lobes of ``env`` as the refinement's parameters (:func:`ebr_mitsuba.sgparams.encode`,
+    unbounded: the lobes it starts from are kept as they are)."""
     import mitsuba as mi
 
+    axis, log_sharpness, log_amplitude = sgparams.encode(
+        env.axis, env.sharpness, env.amplitude, bounded=False
+    )
     return {
-        "axis": mi.TensorXf(np.ascontiguousarray(env.axis, dtype=np.float32)),
-        "log_sharpness": mi.TensorXf(np.log(env.sharpness).astype(np.float32)),
-        "log_amplitude": mi.TensorXf(np.log(env.amplitude + 1e-6).astype(np.float32)),
+        "axis": mi.TensorXf(np.ascontiguousarray(axis)),
+        "log_sharpness": mi.TensorXf(log_sharpness),
+        "log_amplitude": mi.TensorXf(log_amplitude),
     }
 
 
