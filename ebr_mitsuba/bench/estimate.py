@@ -17,9 +17,9 @@
   holds the JSON alone, and whether every stage longer than one second showed its progress bar
   on stderr.
 * *Error against resolution*: each estimate's maps resampled to the truth's 1024² (bilinear up,
-  area down; normals renormalised) and compared per map (RMSE, normals as (n+1)/2, DESIGN §3);
-  the model-grid estimate (``--max-size`` at the grid) and the 256² estimate, upsampled, are the
-  baselines.
+  area down; normals renormalised) and compared per map (RMSE, normals as (n+1)/2:
+  docs/conventions.md#metrics); the model-grid estimate (``--max-size`` at the grid) and the 256²
+  estimate, upsampled, are the baselines.
 * *A second capture* (:data:`SECOND`, same setup): the error against resolution of the maps
   (``ebr_mitsuba.estimate.fullres.predict_maps`` in process, no refinement), so that the
   comparison between sizes does not rest on one material.
@@ -32,8 +32,9 @@
   1024²; and the time those FLOPs take at this CPU's peak, computed two ways: the vector ISA's
   (cores × clock × FLOPs per cycle, from ``/proc/cpuinfo``: AVX-512 with FMA = 16 float32 lanes
   × 2 FLOPs × 2 FMA ports) and a measured large GEMM (``torch.mm`` of 4096² float32, best of 3).
-* *Knobs* (DESIGN §5): the irradiance table's resolution against its error and time, and tiles
-  against one pass (forced tiles at 1024²: the map difference and the time).
+* *Knobs*: the irradiance table's resolution (:func:`ebr_mitsuba.render.env_sg.irradiance_table`)
+  against its error and time, and tiles (:mod:`ebr_mitsuba.estimate.tiling`) against one pass
+  (forced tiles at 1024²: the map difference and the time).
 
 Timings depend on the machine and its load; the page records the load average around each run.
 """

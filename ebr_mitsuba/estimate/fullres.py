@@ -1,7 +1,8 @@
 """Full-resolution maps: the cascade over the whole working image, the lighting from the grid.
 
 The networks were trained on whole captures at the model grid G (the flash highlight at the frame
-centre, the camera of DESIGN §3). An N×N working image (N > G) is estimated as one capture:
+centre, the camera of docs/conventions.md#geometry-and-pixel-grid). An N×N working image (N > G)
+is estimated as one capture:
 
 1. **Lighting, once** (:meth:`~ebr_mitsuba.model.predictor.StagedPredictor.predict_lighting`, at
    G): lighting net, SG extraction, exemplar selection. Nothing of it is repeated per tile.

@@ -1,7 +1,8 @@
 """The photos of an estimate: reading, exposure matching and the input checks.
 
 :func:`load_inputs` reads the shots of one capture, brings them to one exposure and checks them.
-Every image is a linear float32 (H, W, 3) numpy array, row 0 at the top (DESIGN §3).
+Every image is a linear float32 (H, W, 3) numpy array, row 0 at the top
+(docs/conventions.md#geometry-and-pixel-grid).
 
 ================  ===========================================================================
 shot              meaning

@@ -1,4 +1,5 @@
-"""The EBREnv networks (DESIGN §1 steps 1 and 4): the lighting net and the material cascade.
+"""The EBREnv networks (docs/conventions.md#pipeline, steps 1 and 4): the lighting net and the
+material cascade.
 
 Every network is a :class:`~.nafnet.NAFNet`; radiance inputs enter through
 :func:`~.transforms.log_input` (``log(max(x,0) + ε)``, ``ε = log_eps``), outputs leave through the
@@ -12,7 +13,7 @@ constraints of :mod:`.transforms`. Losses are not computed here (see :mod:`.loss
 
 ``S = 2`` shots ``(flash, no-flash)`` in ``near`` mode, ``S = 4`` ``(flash, no-flash, far flash,
 far no-flash)`` in ``near-far`` mode; ``N = num_exemplars`` environment exemplars (uniform
-material, roughness per exemplar index, DESIGN §3 "Exemplars").
+material, roughness per exemplar index: docs/conventions.md#exemplars).
 
 **Cascade** (:class:`Cascade`, step 4; steps 2–3, SG extraction and exemplar selection, run in
 Dr.Jit in between and hand in the selected exemplars)::

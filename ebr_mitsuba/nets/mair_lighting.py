@@ -1,6 +1,7 @@
 """Per-pixel spherical-Gaussian incident lighting (MAIR's "incident direct lighting", S_D SGs per pixel).
 
-At pixel p the incident radiance from direction ω (world, z-up, the DESIGN §3 SG form) is ::
+At pixel p the incident radiance from direction ω (world, z-up, the SG form of
+docs/conventions.md#spherical-gaussians) is ::
 
     L_p(ω) = Σ_s μ_s(p) · η_s · exp(λ_s(p) (ξ_s(p)·ω − 1))
 
