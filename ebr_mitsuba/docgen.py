@@ -110,9 +110,9 @@ def config_sections() -> list[tuple[str, str, type, object]]:
     from .exemplar.select import SELECT_PRESETS, SelectConfig
     from .extract.config import EXTRACT_PRESETS, ExtractConfig
     from .insert import InsertConfig
+    from .model import config as train
     from .nets import CascadeConfig, DualLossConfig, LightingNetConfig, NAFNetSize
     from .nets.mair_config import MAIRConfig, MAIRSize, UNetSize
-    from .train import config as train
     from .validate import ValidateConfig
 
     out = [("`ebr generate` command line (GenerateRunConfig)", "", GenerateRunConfig, None)]

@@ -22,10 +22,10 @@ from ebr_mitsuba.exemplar.images import ExemplarsConfig
 from ebr_mitsuba.exemplar.select import SELECT_PRESETS, SelectConfig
 from ebr_mitsuba.extract.config import EXTRACT_PRESETS, ExtractConfig
 from ebr_mitsuba.insert import INSERT_FLAGS, InsertConfig
+from ebr_mitsuba.model import config as train_config
 from ebr_mitsuba.nets import CascadeConfig, DualLossConfig, LightingNetConfig, NAFNetSize
 from ebr_mitsuba.nets.mair_config import MAIRConfig, MAIRSize, UNetSize
 from ebr_mitsuba.nets.nafnet import SIZE_PRESETS, SMALL_SIZE
-from ebr_mitsuba.train import config as train_config
 from ebr_mitsuba.validate import ValidateConfig
 
 MIGRATED = [
@@ -252,7 +252,7 @@ def test_toml_files_fail_in_one_line_naming_the_file(tmp_path):
     """Every TOML reader (generate, train, the test split) goes through read_toml / parse_toml."""
     from ebr_mitsuba.data.config import load_config as load_generate
     from ebr_mitsuba.data.split import load_split
-    from ebr_mitsuba.train.config import load_config as load_train
+    from ebr_mitsuba.model.config import load_config as load_train
     from ebr_mitsuba.typedconfig import parse_toml, read_toml
 
     good = tmp_path / "good.toml"

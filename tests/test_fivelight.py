@@ -109,8 +109,8 @@ def test_dualloss_checkpoint_carries_only_its_tables_and_loads(dl_model, tiny5, 
 def test_old_dualloss_checkpoint_with_default_stages_loads(dl_model, tiny5, tmp_path, capsys):
     """A checkpoint written before the fix (a default [stages], empty [selection] / [extract] in
     its config) loads, evaluates and estimates like a new one."""
+    from ebr_mitsuba.model.config import StageSteps, config_from_dict
     from ebr_mitsuba.model.predict import load_model
-    from ebr_mitsuba.train.config import StageSteps, config_from_dict
 
     old = torch.load(dl_model, weights_only=True)
     stages = dataclasses.asdict(StageSteps())
@@ -142,7 +142,7 @@ def test_old_dualloss_checkpoint_with_default_stages_loads(dl_model, tiny5, tmp_
 
 
 def test_dualloss_config_refuses_ebrenv_tables(tmp_path):
-    from ebr_mitsuba.train.config import load_config
+    from ebr_mitsuba.model.config import load_config
 
     base = 'kind = "dualloss"\n[data]\ntrain = "x"\n'
     for table in ("stages", "selection", "extract"):

@@ -87,7 +87,7 @@ def write_toml(doc: dict, path: Path) -> Path:
 
 
 def train(doc: dict, out: Path, resume: bool = False, **kwargs) -> dict:
-    from ebr_mitsuba.train.config import parse_config
+    from ebr_mitsuba.model.config import parse_config
     from ebr_mitsuba.train.trainer import Trainer
 
     return Trainer(parse_config(doc, "t.toml"), out, resume=resume, **kwargs).run()

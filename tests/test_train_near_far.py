@@ -19,7 +19,7 @@ import torch
 
 from ebr_mitsuba.cli import main
 from ebr_mitsuba.errors import InputError
-from ebr_mitsuba.train.config import PHASES, load_config, parse_config
+from ebr_mitsuba.model.config import PHASES, load_config, parse_config
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "configs"

@@ -71,7 +71,7 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     from ..fsutil import sigterm_as_exit
     from ..model.checkpoint import export_model
-    from ..train.config import load_config
+    from ..model.config import load_config
     from ..train.ddp import shutdown
     from ..train.trainer import Trainer
 

@@ -14,6 +14,8 @@ module          contents
 ``predict``     :func:`~.predict.load_model`, :func:`~.predict.load_predictor`,
                 :class:`~.predict.ModelPredictor`, :func:`~.predict.predict` (photos → maps + SGs)
 ``bundle``      :class:`~.bundle.ModelBundle` (networks + configs + training-data facts)
+``config``      :class:`~.config.TrainConfig`, the typed TOML config a model is trained from and
+                carries in its checkpoint (:func:`~.config.load_config`, :func:`~.config.config_from_dict`)
 ``checkpoint``  atomic checkpoints with weights, config, git hash, step, optimizer state, kind;
                 :func:`~.checkpoint.load_checkpoint`, :func:`~.checkpoint.export_model`
 ``renders``     the cascade's renderers (torch flash + Dr.Jit SG environment through ``dr.wrap``),

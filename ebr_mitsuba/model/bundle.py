@@ -15,7 +15,7 @@ import torch
 
 from ..data import store
 from ..errors import ConfigError, InputError
-from ..train.config import TrainConfig, config_from_dict
+from .config import TrainConfig, config_from_dict
 
 
 @dataclass(frozen=True)
@@ -123,7 +123,7 @@ class ModelBundle:
 
 def net_configs(bundle: ModelBundle) -> dict:
     """The network configs as plain data (for the checkpoint)."""
-    from ..train.config import _plain
+    from .config import _plain
 
     return {name: _plain(net.config) for name, net in bundle.nets().items()}
 

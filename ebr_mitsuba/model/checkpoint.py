@@ -41,7 +41,7 @@ import torch
 from .. import __version__
 from ..errors import InputError
 from ..fsutil import atomic_path
-from ..train.config import EBRENV_TABLES
+from .config import EBRENV_TABLES
 
 CHECKPOINT_FORMAT = "ebr-checkpoint/1"
 KINDS = ("ebrenv", "dualloss")

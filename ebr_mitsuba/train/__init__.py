@@ -1,12 +1,11 @@
 """Training of the networks (``ebr train``).
 
-The model it trains (networks, checkpoints, the cascade's renders, prediction) lives in
-:mod:`ebr_mitsuba.model`.
+The model it trains (networks, checkpoints, the cascade's renders, prediction) and the training
+config the model carries (:mod:`ebr_mitsuba.model.config`) live in :mod:`ebr_mitsuba.model`.
 
 ==============  ===================================================================================
 module          contents
 ==============  ===================================================================================
-``config``      typed TOML training config, every default in one place (:func:`load_config`)
 ``data``        the training data set in memory
 ``cache``       per-sample exemplar selections and extracted SGs on disk (stage 1, stage 2)
 ``phases``      the training phases (lighting, diffuse, specular, refinement, finetune, dualloss)

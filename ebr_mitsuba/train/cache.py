@@ -110,7 +110,8 @@ def load_cache(root: Path, stage: str, indices) -> dict:
 
 class RunCaches:
     """The caches of one run under ``root`` (``--out``) for ``data`` and ``config`` (a
-    :class:`.config.TrainConfig`: selection and extraction options, ``finetune_samples``).
+    :class:`~ebr_mitsuba.model.config.TrainConfig`: selection and extraction options,
+    ``finetune_samples``).
 
     :meth:`stage1` and :meth:`stage2` fill their cache (this rank's share of the samples, files
     already there skipped; then a barrier) on the first call, load it and keep it for later calls.

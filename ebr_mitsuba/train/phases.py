@@ -18,11 +18,11 @@ from typing import NamedTuple
 
 import torch
 
+from ..model.config import LossConfig, TrainConfig
 from ..model.renders import cascade_forward, diffuse_flash_renderer
 from ..nets import Maps
 from ..nets.losses import MapWeights, parameter_l1, rendering_loss, sample_view_light_pairs
 from ..nets.transforms import log_input
-from .config import LossConfig, TrainConfig
 from .data import CAPTURE_SHOTS, TrainingData
 
 

@@ -76,11 +76,11 @@ from ..errors import InputError
 from ..fsutil import OutputLock, atomic_write_text, is_temporary, remove_stale_temporaries
 from ..model.bundle import DataFacts, build_bundle, net_configs
 from ..model.checkpoint import load_checkpoint, save_checkpoint
+from ..model.config import PHASES, TrainConfig
 from ..model.device import pick_device
 from ..nets.losses import MapWeights
 from . import ddp
 from .cache import RunCaches
-from .config import PHASES, TrainConfig
 from .data import CAPTURE_SHOTS, load_training_data
 from .phases import Phase, PhaseInputs, PhasePlan, build_phase, plan_phases
 

@@ -1,4 +1,10 @@
-"""Training configuration: typed TOML tables, every default in this one file, unknown keys rejected.
+"""The config a model is trained from and carries in every checkpoint: typed TOML tables, every
+default in this one file, unknown keys rejected.
+
+``ebr train`` reads it (:func:`load_config`); :func:`ebr_mitsuba.model.bundle.bundle_from_checkpoint`
+rebuilds a model's networks, extraction and selection settings from the copy in its checkpoint
+(:func:`config_from_dict`), so the model package owns it and does not depend on
+:mod:`ebr_mitsuba.train`.
 
 Precedence: the defaults below < the config file < the command line (``ebr train --out``).
 Errors name the file and the key (``train_small.toml: train.lr: expected float (a number), got 'fast'``),
