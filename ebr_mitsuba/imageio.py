@@ -38,7 +38,10 @@ names the file and the fix. Writers are atomic (:func:`ebr_mitsuba.fsutil.atomic
 synchronous; a full disk is a :class:`~ebr_mitsuba.errors.DiskFullError` naming the file (nothing
 is left under its name); a bad array passed by code is a ``ValueError``.
 
-:func:`resize_area` resamples an image by exact area averaging (box filter of the footprint).
+:func:`resize_area` resamples an image by exact area averaging (box filter of the footprint);
+:func:`upsample_bilinear` enlarges one by linear interpolation between pixel centres (the
+definition, numpy, in the image's dtype) and :func:`upsample_bilinear_fast` gives the same values
+in float32 through torch (the full-resolution estimate's correction fields and maps).
 """
 
 from __future__ import annotations
@@ -564,6 +567,21 @@ def upsample_bilinear(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     top = image[y0][:, x0] * (1 - fx) + image[y0][:, x1] * fx
     bottom = image[y1][:, x0] * (1 - fx) + image[y1][:, x1] * fx
     return (top * (1 - fy) + bottom * fy).astype(image.dtype)
+
+
+def upsample_bilinear_fast(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """:func:`upsample_bilinear` in float32 through ``torch.nn.functional.interpolate`` (bilinear,
+    ``align_corners=False``: the same interpolation between pixel centres with clamped edges; the
+    same values to 1e-6, tested) in a fraction of the time; (h, w[, c]) → (H, W[, c]) float32."""
+    import torch
+    import torch.nn.functional as F
+
+    a = np.asarray(image, np.float32)
+    t = torch.from_numpy(np.ascontiguousarray(a if a.ndim == 3 else a[..., None])).permute(2, 0, 1)[None]
+    with torch.no_grad():
+        out = F.interpolate(t, size=(int(size[0]), int(size[1])), mode="bilinear", align_corners=False)
+    out = out[0].permute(1, 2, 0).numpy()
+    return np.ascontiguousarray(out if a.ndim == 3 else out[..., 0])
 
 
 def box_mean(a: np.ndarray, r: int) -> np.ndarray:

@@ -80,6 +80,22 @@ def test_ssim_rejects_bad_input():
 # -- NNLS, quad-tree, merge ------------------------------------------------------------------------------
 
 
+def test_lighting_error_is_one_quantity_with_two_edge_case_policies(rng):
+    """extract.evaluate.lighting_errors ranks on metrics.lighting_error(judge=True): the same value
+    as the reported lighting error where both are defined; a broken render is inf, not nan."""
+    from ebr_mitsuba.metrics import lighting_error, rel_rmse
+
+    a, b = rng.random((2, 8, 8, 3)), rng.random((2, 8, 8, 3))
+    assert lighting_error(a, b) == lighting_error(a, b, judge=True)
+    assert lighting_error(a, b, judge=True)["rel_rmse"] == rel_rmse(a, b)
+    broken = a.copy()
+    broken[0, 0, 0, 0] = np.nan
+    assert lighting_error(broken, b, judge=True)["rel_rmse"] == float("inf")
+    black = np.zeros_like(b)
+    assert np.isnan(lighting_error(a, black)["rel_rmse"])
+    assert lighting_error(a, black, judge=True)["rel_rmse"] == float("inf")
+
+
 def test_nnls_matches_brute_force(rng):
     for _ in range(4):
         a = rng.random((30, 5))

@@ -218,20 +218,20 @@ def make_inputs(capture_dir: Path, size: int, out: Path) -> dict[str, Path]:
 
 def maps_at(maps, size: int):
     """Maps resampled to ``size``²: bilinear up, area down; normals renormalised."""
-    from ..estimate.tiling import upsample_bilinear
+    from ..imageio import upsample_bilinear_fast
     from ..materials import resample_svbrdf
     from ..svbrdf import SVBRDF
 
     n = maps.shape[0]
     if n >= size:
         return resample_svbrdf(maps, (size, size))
-    normal = upsample_bilinear(maps.normal, (size, size))
+    normal = upsample_bilinear_fast(maps.normal, (size, size))
     normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
     return SVBRDF(
         normal=normal,
-        diffuse=np.clip(upsample_bilinear(maps.diffuse, (size, size)), 0, 1),
-        specular=np.clip(upsample_bilinear(maps.specular, (size, size)), 0, 1),
-        roughness=np.clip(upsample_bilinear(maps.roughness, (size, size)), 0, 1),
+        diffuse=np.clip(upsample_bilinear_fast(maps.diffuse, (size, size)), 0, 1),
+        specular=np.clip(upsample_bilinear_fast(maps.specular, (size, size)), 0, 1),
+        roughness=np.clip(upsample_bilinear_fast(maps.roughness, (size, size)), 0, 1),
     )
 
 
@@ -279,6 +279,7 @@ def measure_table(size: int, resolutions) -> list[dict]:
     """The irradiance table's relative RMSE against the per-pair form and its render time at
     ``size``² (the test capture's truth maps are not needed: a procedural normal-mapped SVBRDF)."""
     from ..geometry import near_shot
+    from ..metrics import rel_rmse
     from ..render import render_numpy
     from ..sgenv import SGEnvironment
     from ..sources import parse_material
@@ -301,8 +302,7 @@ def measure_table(size: int, resolutions) -> list[dict]:
     rows = [{"table": 0, "rel_rmse": 0.0, "seconds": t_exact}]
     for r in resolutions:
         img, t = timed(irradiance_table=r)
-        rel = float(np.sqrt(np.mean((img - exact) ** 2)) / np.sqrt(np.mean(exact**2)))
-        rows.append({"table": r, "rel_rmse": rel, "seconds": t})
+        rows.append({"table": r, "rel_rmse": rel_rmse(img, exact), "seconds": t})
     return rows
 
 

@@ -68,11 +68,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..imageio import resize_area
+from ..imageio import resize_area, upsample_bilinear_fast
 from ..model.predictor import Lighting, PassInputs, StagedPredictor
 from ..sgenv import SGEnvironment
 from ..svbrdf import SVBRDF
-from .tiling import DEFAULT_OVERLAP, ramp, tile_starts, upsample_bilinear
+from .tiling import DEFAULT_OVERLAP, ramp, tile_starts
 
 IRRADIANCE_TABLE = 64  # RenderOptions.irradiance_table of the cascade's environment renders at N
 PASS_MEMORY = 1.5e9  # bytes one full-resolution network pass may take before tiles are used
@@ -117,7 +117,7 @@ def detail_merge(low: np.ndarray, high: np.ndarray) -> np.ndarray:
     n, g = high.shape[:2], low.shape[:2]
     if n == g:
         return np.asarray(low, np.float32)
-    up = upsample_bilinear(np.asarray(low, np.float32) - resize_area(high, g), n)
+    up = upsample_bilinear_fast(np.asarray(low, np.float32) - resize_area(high, g), n)
     return np.maximum(up + high, 0.0, out=up)
 
 
@@ -140,7 +140,7 @@ def env_exemplars_at(env: SGEnvironment | None, roughness, grid_images: np.ndarr
     for i in range(k):
         eps = 1e-3 * float(np.mean(grid_images[i])) + 1e-12
         ratio = (grid_images[i].astype(np.float64) + eps) / (resize_area(sg[i], (g, g)) + eps)
-        sg[i] *= upsample_bilinear(ratio, (size, size))
+        sg[i] *= upsample_bilinear_fast(ratio, (size, size))
     return sg
 
 
@@ -392,7 +392,7 @@ def low_frequencies_from(grid_maps: SVBRDF, maps: SVBRDF, names=LOW_FREQUENCY_MA
         m = np.asarray(getattr(maps, name), np.float32)
         if name in names and n != g:
             low = np.asarray(getattr(grid_maps, name), np.float32) - resize_area(m, (g, g))
-            m = np.clip(upsample_bilinear(low, (n, n)) + m, 0.0, 1.0)
+            m = np.clip(upsample_bilinear_fast(low, (n, n)) + m, 0.0, 1.0)
         out[name] = m
     return SVBRDF(maps.normal, out["diffuse"], out["specular"], out["roughness"], source=maps.source)
 
@@ -401,13 +401,13 @@ def upsample_maps(maps: SVBRDF, size: int) -> SVBRDF:
     """Maps bilinearly upsampled to ``size``² (normals renormalised); unchanged at their size."""
     if maps.shape[0] == size:
         return maps
-    normal = upsample_bilinear(maps.normal, (size, size))
+    normal = upsample_bilinear_fast(maps.normal, (size, size))
     normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
     return SVBRDF(
         normal=normal,
-        diffuse=upsample_bilinear(maps.diffuse, (size, size)),
-        specular=upsample_bilinear(maps.specular, (size, size)),
-        roughness=upsample_bilinear(maps.roughness, (size, size)),
+        diffuse=upsample_bilinear_fast(maps.diffuse, (size, size)),
+        specular=upsample_bilinear_fast(maps.specular, (size, size)),
+        roughness=upsample_bilinear_fast(maps.roughness, (size, size)),
         source=maps.source,
     )
 

@@ -359,13 +359,15 @@ def from_params(p: dict[str, np.ndarray], source: str = "refined") -> SVBRDF:
 def carry_change(net_coarse: SVBRDF, refined_coarse: SVBRDF, net_fine: SVBRDF) -> SVBRDF:
     """``net_fine`` plus the change ``refined_coarse − net_coarse`` upsampled (bilinear, in the
     unconstrained parameters): a coarse level's result carried to a finer level."""
-    from .tiling import upsample_bilinear
+    from ..imageio import upsample_bilinear_fast
 
     if refined_coarse is net_coarse:
         return net_fine
     a, b, f = to_params(net_coarse), to_params(refined_coarse), to_params(net_fine)
     size = net_fine.shape
-    out = {k: f[k] + upsample_bilinear(b[k].astype(np.float64) - a[k], size).astype(np.float32) for k in f}
+    out = {
+        k: f[k] + upsample_bilinear_fast(b[k].astype(np.float64) - a[k], size).astype(np.float32) for k in f
+    }
     return from_params(out)
 
 

@@ -1,4 +1,5 @@
-"""Tiles with overlap blending, and the bilinear upsampling of the full-resolution estimate.
+"""Tiles with overlap blending for the full-resolution estimate (its bilinear upsampling is
+:func:`ebr_mitsuba.imageio.upsample_bilinear_fast`).
 
 When one network pass over the whole working image would take too much memory,
 :mod:`.fullres` covers the N×N image with T×T tiles whose origins step by at most T − overlap
@@ -45,36 +46,4 @@ def ramp(tile: int, overlap: int) -> np.ndarray:
     return np.maximum(w, 1e-3)
 
 
-def upsample_bilinear(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """(h, w[, c]) → (H, W[, c]) float32 by separable linear interpolation between pixel centres
-    (edges clamped): ``torch.nn.functional.interpolate`` (bilinear, ``align_corners=False``), the
-    same values as :func:`upsample_bilinear_reference` (tested) in a fraction of the time."""
-    import torch
-    import torch.nn.functional as F
-
-    a = np.asarray(image, np.float32)
-    t = torch.from_numpy(np.ascontiguousarray(a if a.ndim == 3 else a[..., None])).permute(2, 0, 1)[None]
-    with torch.no_grad():
-        out = F.interpolate(t, size=(int(size[0]), int(size[1])), mode="bilinear", align_corners=False)
-    out = out[0].permute(1, 2, 0).numpy()
-    return np.ascontiguousarray(out if a.ndim == 3 else out[..., 0])
-
-
-def upsample_bilinear_reference(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """(h, w[, c]) → (H, W[, c]) by separable linear interpolation between pixel centres (edges
-    clamped), in numpy float64: the reference of :func:`upsample_bilinear`."""
-    h, w = image.shape[:2]
-    ys = np.clip((np.arange(size[0]) + 0.5) * h / size[0] - 0.5, 0, h - 1)
-    xs = np.clip((np.arange(size[1]) + 0.5) * w / size[1] - 0.5, 0, w - 1)
-    y0, x0 = np.floor(ys).astype(int), np.floor(xs).astype(int)
-    y1, x1 = np.minimum(y0 + 1, h - 1), np.minimum(x0 + 1, w - 1)
-    fy, fx = ys - y0, xs - x0
-    if image.ndim == 3:
-        fy, fx = fy[:, None, None], fx[None, :, None]
-    else:
-        fy, fx = fy[:, None], fx[None, :]
-    rows = image[y0] * (1 - fy) + image[y1] * fy
-    return rows[:, x0] * (1 - fx) + rows[:, x1] * fx
-
-
-__all__ = ["DEFAULT_OVERLAP", "ramp", "tile_starts", "upsample_bilinear", "upsample_bilinear_reference"]
+__all__ = ["DEFAULT_OVERLAP", "ramp", "tile_starts"]

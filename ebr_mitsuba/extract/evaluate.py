@@ -22,7 +22,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..geometry import Shot, near_shot
-from ..metrics import rel_rmse
+from ..metrics import lighting_error
 from ..sgenv import SGEnvironment
 from ..svbrdf import SVBRDF
 
@@ -80,9 +80,9 @@ def lighting_errors(
     seeds: int = 8,
     reference: dict | None = None,
 ) -> dict:
-    """``{"exemplars": rel RMSE, "test": rel RMSE}`` (:func:`ebr_mitsuba.metrics.rel_rmse`: the
-    benchmarks rank on it) of ``estimate`` against ``truth``; ``reference`` may hold precomputed
-    truth renders under the same keys."""
+    """``{"exemplars": rel RMSE, "test": rel RMSE}`` of ``estimate`` against ``truth``: the relative
+    :func:`ebr_mitsuba.metrics.lighting_error` with ``judge=True`` (the benchmarks rank on it: a
+    broken render is ``inf``); ``reference`` may hold precomputed truth renders under the same keys."""
     reference = reference or {}
     ref_ex = reference.get("exemplars")
     if ref_ex is None:
@@ -92,4 +92,7 @@ def lighting_errors(
         ref_test = quadrature_mean(truth, None, size, spp, seeds)
     est_ex = quadrature_mean(estimate, roughness, size, spp, seeds, seed0=5000)
     est_test = quadrature_mean(estimate, None, size, spp, seeds, seed0=5000)
-    return {"exemplars": rel_rmse(est_ex, ref_ex), "test": rel_rmse(est_test, ref_test)}
+    return {
+        "exemplars": lighting_error(est_ex, ref_ex, judge=True)["rel_rmse"],
+        "test": lighting_error(est_test, ref_test, judge=True)["rel_rmse"],
+    }
