@@ -95,6 +95,7 @@ def config_sections() -> list[tuple[str, str, type, object]]:
     from .commands.bench import BenchConfig
     from .commands.dataset import SheetConfig
     from .commands.demo import DemoConfig
+    from .commands.eval import EvalConfig
     from .commands.gallery import GalleryConfig
     from .commands.generate import GenerateRunConfig
     from .commands.render import RenderConfig
@@ -143,6 +144,7 @@ def config_sections() -> list[tuple[str, str, type, object]]:
         ("`ebr validate` (ValidateConfig)", "", ValidateConfig, None),
         ("`ebr bench` (BenchConfig)", "", BenchConfig, None),
         ("`ebr train` command line (TrainRunConfig)", "", TrainRunConfig, None),
+        ("`ebr eval` (EvalConfig)", "", EvalConfig, None),
     ]
     out += [(f"`ebr train` [{name}]", f"{name}.", cls, None) for name, cls in train.TABLES.items()]
     out += [

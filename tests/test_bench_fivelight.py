@@ -88,12 +88,14 @@ def test_eval_of_a_finer_data_set_runs_the_model_at_its_grid(runs):
     """Photos finer than the model grid are area-averaged to it and the maps area-resampled back."""
     from ebr_mitsuba.evaluation.evaluate import model_predictor
     from ebr_mitsuba.materials import resample_svbrdf
-    from ebr_mitsuba.model.predict import load_model
+    from ebr_mitsuba.model.predict import as_predictor, load_model
 
     bundle = load_model(str(runs["dual"] / "model.pt"), expect_kind="dualloss")
     grid = bundle.resolution
     photos = torch.rand(5, 3, 2 * grid, 2 * grid, generator=torch.Generator().manual_seed(0))
-    got = model_predictor(bundle)({"photos": photos, "exposure": 2.0}, [f"light{k}" for k in range(5)])
+    got = model_predictor(as_predictor(bundle))(
+        {"photos": photos, "exposure": 2.0}, [f"light{k}" for k in range(5)]
+    )
     assert got.shape == (2 * grid, 2 * grid)
     small = torch.nn.functional.interpolate(photos / 2.0, size=(grid, grid), mode="area")
     with torch.no_grad():

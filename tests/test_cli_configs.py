@@ -1,5 +1,5 @@
 """``ebr capture``, ``fit-env``, ``exemplars``, ``render``, ``validate``, ``demo``, ``gallery``,
-``generate``, ``train``, ``dataset sheet`` and ``bench`` build their options from typed configs
+``generate``, ``train``, ``eval``, ``dataset sheet`` and ``bench`` build their options from typed configs
 (issue 11): the defaults ``--help`` shows and the parser holds are the configs' defaults, every
 option but the command's own inputs is a config field, the config built from no flags is the
 config's default, and a bad value is one line, exit 2. Nothing is rendered here: the commands fail
@@ -20,6 +20,7 @@ from ebr_mitsuba.cli import main
 from ebr_mitsuba.commands.bench import BENCH_FLAGS, BenchConfig
 from ebr_mitsuba.commands.dataset import SHEET_FLAGS, SheetConfig
 from ebr_mitsuba.commands.demo import DEMO_FLAGS, DemoConfig
+from ebr_mitsuba.commands.eval import EVAL_FLAGS, EvalConfig
 from ebr_mitsuba.commands.gallery import GALLERY_FLAGS, GalleryConfig
 from ebr_mitsuba.commands.generate import GENERATE_FLAGS, GenerateRunConfig
 from ebr_mitsuba.commands.render import RENDER_FLAGS, RenderConfig
@@ -47,6 +48,7 @@ COMMANDS = {
     "gallery": (GalleryConfig, GALLERY_FLAGS, set(), ["photos"]),
     "generate": (GenerateRunConfig, GENERATE_FLAGS, {"--out"}, ["c.toml", "--out", "o"]),
     "train": (TrainRunConfig, TRAIN_FLAGS, set(), ["c.toml"]),
+    "eval": (EvalConfig, EVAL_FLAGS, {"--data", "--baseline-checkpoint"}, ["--data", "d"]),
     "dataset sheet": (SheetConfig, SHEET_FLAGS, {"--out"}, ["d", "--out", "s.png"]),
     "bench": (BenchConfig, BENCH_FLAGS, set(), []),
 }
@@ -119,6 +121,10 @@ def test_defaults_spelled_out():
     assert "[runs/<config name>]" in entries["train"]["--out"]
     assert SheetConfig().samples == 16 and "[16]" in entries["dataset sheet"]["--samples"]
     assert BenchConfig() == BenchConfig(out=None, quick=False)
+    assert EvalConfig() == EvalConfig(
+        checkpoint=None, limit=0, seed=0, baseline_mean=None, baseline_oracle=False, fixed_roughness=None
+    )
+    assert "[the shipped model]" in entries["eval"]["--checkpoint"] and "[0]" in entries["eval"]["--limit"]
 
 
 def test_flags_set_the_fields():
@@ -158,6 +164,12 @@ def test_flags_set_the_fields():
     assert tc.from_args(SheetConfig, args, SHEET_FLAGS) == SheetConfig(samples=3)
     args = subparser("bench").parse_args(["renderer", "--out", "b", "--quick"])
     assert tc.from_args(BenchConfig, args, BENCH_FLAGS) == BenchConfig(out="b", quick=True)
+    args = subparser("eval").parse_args(
+        ["--data", "d", "--limit", "2", "--baseline-oracle", "--fixed-roughness", "0.5"]
+    )
+    assert tc.from_args(EvalConfig, args, EVAL_FLAGS) == EvalConfig(
+        limit=2, baseline_oracle=True, fixed_roughness=0.5
+    )
 
 
 @pytest.mark.parametrize(
@@ -182,6 +194,8 @@ def test_flags_set_the_fields():
         (["generate", "c.toml", "--out", "o", "--count", "0"], "--count: must be >= 1, got 0"),
         (["generate", "c.toml", "--out", "o", "--shard-size", "x"], "--shard-size 'x': give an integer"),
         (["dataset", "sheet", "d", "--out", "s.png", "--samples", "0"], "--samples: must be >= 1, got 0"),
+        (["eval", "--data", "d", "--fixed-roughness", "2"], "--fixed-roughness: must be in [0, 1], got 2"),
+        (["eval", "--data", "d", "--limit", "-1"], "--limit -1: give a count >= 0"),
     ],
 )
 def test_bad_value_is_one_line_exit_2(tmp_path, monkeypatch, capsys, argv, needle):

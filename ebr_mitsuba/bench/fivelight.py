@@ -142,7 +142,7 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
     from ..evaluation.baselines import MeanMaps
     from ..evaluation.evaluate import _truth, estimate_predictor, evaluate, model_predictor, oracle_predictor
     from ..fsutil import atomic_write_text
-    from ..model.predict import load_model
+    from ..model.predict import load_predictor as load_model  # a LightsPredictor for model_predictor
 
     reason = unavailable()
     if reason:

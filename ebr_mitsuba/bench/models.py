@@ -383,7 +383,8 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
         oracle_predictor,
     )
     from ..fsutil import atomic_write_text
-    from ..model.predict import load_model, load_predictor
+    from ..model.predict import load_predictor
+    from ..model.predict import load_predictor as load_model  # a Predictor for model_predictor (issue 11)
 
     data = os.environ.get("EBR_SPLIT_DATA")
     if not data or not Path(data).is_dir():

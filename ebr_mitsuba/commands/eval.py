@@ -17,10 +17,12 @@ For every sample the model sees only the photos; its maps are scored against the
 "baselines": {...}} on stdout (CLASS: the real set's class of materials_extra/index.json, or
 procedural:FAMILY).
 
-Options:
+Options (all but ``--data`` and ``--baseline-checkpoint`` are the fields of :class:`EvalConfig`:
+flags, defaults and help generated from its metadata; a bad value is one line naming the flag,
+exit 2):
   --checkpoint CKPT         checkpoint of `ebr train` [the shipped model]
   --data DIR                data set of `ebr generate` (the model's capture setup and grid)
-  --limit N                 first N samples only [all]
+  --limit N                 first N samples only [0: all]
   --seed S                  seed of the re-render light/view pairs [0]
   --baseline-mean TRAIN_DIR also score baseline (a): the per-pixel mean maps of that data set
   --baseline-oracle         also score the oracle constant: each sample's own ground-truth mean
@@ -29,46 +31,72 @@ Options:
                             also score another checkpoint on the same samples and pairs, reported
                             as baselines[NAME] (e.g. no-exemplars=runs/noex/model.pt); repeatable
   --fixed-roughness R       exemplars at roughness R instead of the adaptive selection (ablation)
+
+The model runs as its :class:`~ebr_mitsuba.model.predictor.Predictor`
+(:func:`ebr_mitsuba.model.predict.as_predictor`; a dual-loss model as a
+:class:`~ebr_mitsuba.model.predictor.LightsPredictor`), scored by :mod:`ebr_mitsuba.evaluation`.
 """
 
 from __future__ import annotations
 
+from ..errors import InputError
+from ..typedconfig import add_flags, check, config, from_args, option
 from ._common import emit_json, progress, say
 
 NAME = "eval"
 HELP = "evaluate a trained model on a generated data set (per-map RMSE, re-render RMSE, SSIM, timing)"
 
 
-def add_arguments(parser) -> None:
-    parser.add_argument("--checkpoint", default=None, help="checkpoint of 'ebr train' [the shipped model]")
-    parser.add_argument("--data", required=True, help="data set directory of 'ebr generate'")
-    parser.add_argument("--limit", type=int, default=0, help="evaluate the first N samples only [all]")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the re-render light/view pairs [0]")
-    parser.add_argument(
-        "--baseline-mean",
-        default=None,
-        metavar="TRAIN_DIR",
-        help="also score the per-pixel mean maps of this (training) data set",
+@config(error=InputError, cli=True)
+class EvalConfig:
+    """How ``ebr eval`` scores a model (a bad value is an
+    :class:`~ebr_mitsuba.errors.InputError` naming the flag)."""
+
+    checkpoint: str | None = option(
+        None, "checkpoint of 'ebr train'", metavar="CKPT", shown="the shipped model"
     )
+    limit: int = option(0, "evaluate the first N samples only (0: all; N >= 0)", metavar="N")
+    seed: int = option(0, "seed of the re-render light/view pairs", metavar="S")
+    baseline_mean: str | None = option(
+        None,
+        "also score the per-pixel mean maps of this (training) data set",
+        metavar="TRAIN_DIR",
+        shown="none",
+    )
+    baseline_oracle: bool = option(
+        False,
+        "also score the oracle constant: each sample's own ground-truth mean maps "
+        "(docs/conventions.md, Metrics)",
+    )
+    fixed_roughness: float | None = option(
+        None,
+        "exemplars at roughness R instead of the adaptive selection (ablation; ebrenv models)",
+        minimum=0.0,
+        maximum=1.0,
+        metavar="R",
+        shown="none",
+    )
+
+    def __post_init__(self):
+        if isinstance(self.limit, int) and not isinstance(self.limit, bool) and self.limit < 0:
+            raise InputError(f"--limit {self.limit}: give a count >= 0")
+        check(self)
+
+
+#: The fields ``ebr eval`` sets from its flags (:func:`ebr_mitsuba.typedconfig.add_flags`).
+EVAL_FLAGS = ("checkpoint", "limit", "seed", "baseline_mean", "baseline_oracle", "fixed_roughness")
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--data", required=True, help="data set directory of 'ebr generate'")
+    # The EvalConfig options: values read as text and checked by from_args (one line, exit 2).
+    add_flags(parser, EvalConfig, EVAL_FLAGS)
     parser.add_argument(
         "--baseline-checkpoint",
         action="append",
         default=[],
         metavar="NAME=CKPT",
         help="also score this checkpoint on the same samples (repeatable)",
-    )
-    parser.add_argument(
-        "--fixed-roughness",
-        type=float,
-        default=None,
-        metavar="R",
-        help="exemplars at roughness R instead of the adaptive selection (ablation)",
-    )
-    parser.add_argument(
-        "--baseline-oracle",
-        action="store_true",
-        help="also score the oracle constant: each sample's own ground-truth mean maps "
-        "(docs/conventions.md, Metrics)",
     )
     parser.add_argument("--json", action="store_true", help="print the results as JSON on stdout")
 
@@ -84,7 +112,6 @@ def _line(name: str, m: dict) -> str:
 
 
 def run(args) -> int:
-    from ..errors import InputError
     from ..evaluation.baselines import MeanMaps
     from ..evaluation.evaluate import (
         evaluate,
@@ -94,12 +121,9 @@ def run(args) -> int:
         model_predictor,
         oracle_predictor,
     )
-    from ..model.predict import load_model
+    from ..model.predict import as_predictor, load_model
 
-    if args.limit < 0:
-        raise InputError(f"--limit {args.limit}: give a count >= 0")
-    if args.fixed_roughness is not None and not 0.0 <= args.fixed_roughness <= 1.0:
-        raise InputError(f"--fixed-roughness {args.fixed_roughness}: give a roughness in [0, 1]")
+    cfg = from_args(EvalConfig, args, EVAL_FLAGS)
     others = []
     for spec in args.baseline_checkpoint:
         name, sep, path = spec.partition("=")
@@ -112,35 +136,35 @@ def run(args) -> int:
                 f"--baseline-checkpoint {spec!r}: the name {name!r} is used twice; give each its own"
             )
         others.append((name, path))
-    bundle = load_model(args.checkpoint, expect_kind=None)
+    bundle = load_model(cfg.checkpoint, expect_kind=None)
     loaded = [(name, load_model(path, expect_kind=bundle.kind)) for name, path in others]
-    if bundle.kind == "dualloss" and args.fixed_roughness is not None:
+    if bundle.kind == "dualloss" and cfg.fixed_roughness is not None:
         raise InputError("--fixed-roughness applies to ebrenv models (a dualloss model has no exemplars)")
     result = evaluate(
-        model_predictor(bundle, args.fixed_roughness),
+        model_predictor(as_predictor(bundle, cfg.fixed_roughness)),
         args.data,
-        limit=args.limit,
-        seed=args.seed,
+        limit=cfg.limit,
+        seed=cfg.seed,
         progress=progress,
     )
-    result["checkpoint"] = args.checkpoint or "shipped"
+    result["checkpoint"] = cfg.checkpoint or "shipped"
     result["data"] = str(args.data)
     result["groups"] = group_means(result["per_sample"], material_group)
     result["classes"] = group_means(result["per_sample"], material_class)
     say(_line("model", result))
-    if args.baseline_oracle:
-        base = evaluate(oracle_predictor, args.data, limit=args.limit, seed=args.seed)
+    if cfg.baseline_oracle:
+        base = evaluate(oracle_predictor, args.data, limit=cfg.limit, seed=cfg.seed)
         base["groups"] = group_means(base["per_sample"], material_group)
         base["classes"] = group_means(base["per_sample"], material_class)
         result.setdefault("baselines", {})["oracle_constant"] = base
         say(_line("oracle constant", base))
-    if args.baseline_mean:
-        mean = MeanMaps.from_dataset(args.baseline_mean, bundle.config.data.max_samples)
+    if cfg.baseline_mean:
+        mean = MeanMaps.from_dataset(cfg.baseline_mean, bundle.config.data.max_samples)
         base = evaluate(
             lambda item, names: mean.predict(tuple(item["maps"].shape[1:])),
             args.data,
-            limit=args.limit,
-            seed=args.seed,
+            limit=cfg.limit,
+            seed=cfg.seed,
         )
         base["groups"] = group_means(base["per_sample"], material_group)
         base["classes"] = group_means(base["per_sample"], material_class)
@@ -148,7 +172,7 @@ def run(args) -> int:
         say(_line("mean maps", base))
     for name, other in loaded:
         base = evaluate(
-            model_predictor(other), args.data, limit=args.limit, seed=args.seed, progress=progress
+            model_predictor(as_predictor(other)), args.data, limit=cfg.limit, seed=cfg.seed, progress=progress
         )
         base["checkpoint"] = str(dict(others)[name])
         base["groups"] = group_means(base["per_sample"], material_group)

@@ -1,10 +1,11 @@
 """``ebr eval``: a model (or a baseline) on every sample of a generated data set.
 
 For each sample the model sees the photos only (an ``ebrenv`` model the flash / no-flash pair
-through :meth:`ebr_mitsuba.model.predict.ModelPredictor.predict`, a ``dualloss`` model the five
-light shots) and its maps are scored against the ground truth with :mod:`ebr_mitsuba.metrics`. ``seconds``
-per sample is the wall time of the prediction alone (lighting, extraction, selection and the
-cascade for ``ebrenv``).
+through its :class:`~ebr_mitsuba.model.predictor.Predictor`, a ``dualloss`` model the five light
+shots through its :class:`~ebr_mitsuba.model.predictor.LightsPredictor`; :func:`model_predictor`)
+and its maps are scored against the ground truth with :mod:`ebr_mitsuba.metrics`. ``seconds`` per
+sample is the wall time of the prediction alone (lighting, extraction, selection and the cascade
+for ``ebrenv``).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import torch
 
 from .. import metrics
 from ..errors import InputError
+from ..model.predictor import LightsPredictor, Predictor
 from ..svbrdf import SVBRDF
 
 
@@ -26,32 +28,21 @@ def _truth(item: dict) -> SVBRDF:
     return SVBRDF(m[..., :3], m[..., 3:6], m[..., 6:9], m[..., 9], source="ground truth")
 
 
-def model_predictor(bundle, fixed_roughness: float | None = None) -> Callable[[dict, list[str]], SVBRDF]:
-    """``predict(item, shot_names) -> SVBRDF`` for a loaded model.
+def model_predictor(predictor: Predictor | LightsPredictor) -> Callable[[dict, list[str]], SVBRDF]:
+    """``predict(item, shot_names) -> SVBRDF`` for a model's predictor
+    (:func:`ebr_mitsuba.model.predict.load_predictor`): a flash / no-flash
+    :class:`~ebr_mitsuba.model.predictor.Predictor` (an ``ebrenv`` model) or a
+    :class:`~ebr_mitsuba.model.predictor.LightsPredictor` (a ``dualloss`` model, given every shot).
 
     The photos are divided by the sample's recorded exposure (the reference exposure of
     ``docs/conventions.md``, "Exposure"). Photos finer than the model's grid are area-averaged to
     the grid and the maps area-resampled
-    back to the data set's resolution (the estimate a grid-sized model makes of that capture).
-    An ``ebrenv`` model runs as a :class:`~ebr_mitsuba.model.predict.ModelPredictor`."""
-    from ..model.predict import ModelPredictor
-
-    predictor = ModelPredictor(bundle)
+    back to the data set's resolution (the estimate a grid-sized model makes of that capture)."""
+    if isinstance(predictor, LightsPredictor):
+        return _lights_predictor(predictor)
 
     def run(item: dict, names: list[str]) -> SVBRDF:
         photos = item["photos"] / float(item["exposure"])  # the reference exposure, as in training
-        if bundle.kind == "dualloss":
-            size = tuple(photos.shape[-2:])
-            grid = int(bundle.resolution)
-            if size != (grid, grid):  # the grid-resampled estimate, as for ebrenv below
-                photos = torch.nn.functional.interpolate(photos, size=(grid, grid), mode="area")
-            with torch.no_grad():
-                maps = bundle.dualloss(photos[None].to(bundle.device)).to_svbrdf(0)
-            if maps.shape != size:
-                from ..materials import resample_svbrdf
-
-                maps = resample_svbrdf(maps, size)
-            return maps
         if "noflash" not in names:
             raise InputError(f"the data set has shots {names}; an ebrenv model needs flash / no-flash pairs")
         img = {n: photos[k].permute(1, 2, 0).numpy() for k, n in enumerate(names)}
@@ -68,7 +59,26 @@ def model_predictor(bundle, fixed_roughness: float | None = None) -> Callable[[d
                     f"the data set has shots {names}; this near-far model needs a near-far data set"
                 )
             far = (img["far_flash"], img["far_noflash"])
-        maps = predictor.predict(img["flash"], img["noflash"], *far, fixed_roughness=fixed_roughness).maps
+        maps = predictor.predict(img["flash"], img["noflash"], *far).maps
+        if maps.shape != size:
+            from ..materials import resample_svbrdf
+
+            maps = resample_svbrdf(maps, size)
+        return maps
+
+    return run
+
+
+def _lights_predictor(predictor: LightsPredictor) -> Callable[[dict, list[str]], SVBRDF]:
+    """:func:`model_predictor` of a five-light model: every shot of the sample, in order."""
+
+    def run(item: dict, names: list[str]) -> SVBRDF:
+        photos = item["photos"] / float(item["exposure"])  # the reference exposure, as in training
+        size = tuple(photos.shape[-2:])
+        grid = int(predictor.grid)
+        if size != (grid, grid):  # the grid-resampled estimate, as for the flash / no-flash models
+            photos = torch.nn.functional.interpolate(photos, size=(grid, grid), mode="area")
+        maps = predictor.predict_lights([p.permute(1, 2, 0).numpy() for p in photos]).maps
         if maps.shape != size:
             from ..materials import resample_svbrdf
 

@@ -3,8 +3,9 @@
 :func:`load_model` reads a checkpoint (None: the model shipped in :mod:`ebr_mitsuba.models`) as a
 :class:`~.bundle.ModelBundle`; :func:`load_predictor` wraps it as a :class:`ModelPredictor`, the
 :class:`~.predictor.Predictor` that ``ebr estimate``, ``ebr eval``, the benches and the trainer's
-cache take. :func:`predict` runs, on numpy (H, W, 3) linear float32 images at the model grid
-(``bundle.resolution``):
+cache take (a ``dualloss`` model: a :class:`DualLossPredictor`, the
+:class:`~.predictor.LightsPredictor` of ``ebr eval`` and the five-light bench). :func:`predict`
+runs, on numpy (H, W, 3) linear float32 images at the model grid (``bundle.resolution``):
 
 ==============  ==========================================================================
 stage           work (``Prediction.timings`` key)
@@ -341,12 +342,15 @@ class ModelPredictor:
     """A loaded ``ebrenv`` model as a :class:`~.predictor.Predictor` and
     :class:`~.predictor.StagedPredictor`: this module's functions bound to ``bundle``.
 
-    ``grid``: ``bundle.resolution``; ``takes_far``: the lighting net reads four shots. ``predict``
-    and ``predict_lighting`` also take ``extract_config`` and ``fixed_roughness`` (as the module's
-    functions)."""
+    ``grid``: ``bundle.resolution``; ``takes_far``: the lighting net reads four shots.
+    ``fixed_roughness``: every prediction selects exemplars at that roughness instead of the
+    adaptive selection (the ablation of ``ebr eval --fixed-roughness``). ``predict`` and
+    ``predict_lighting`` also take ``extract_config`` and ``fixed_roughness`` (as the module's
+    functions; a ``fixed_roughness`` given there wins)."""
 
-    def __init__(self, bundle: ModelBundle):
+    def __init__(self, bundle: ModelBundle, fixed_roughness: float | None = None):
         self.bundle = bundle
+        self.fixed_roughness = fixed_roughness
 
     @property
     def grid(self) -> int:
@@ -361,12 +365,14 @@ class ModelPredictor:
         return self.bundle.cascade
 
     def predict(self, flash, noflash, far_flash=None, far_noflash=None, **options) -> Prediction:
+        options.setdefault("fixed_roughness", self.fixed_roughness)
         return predict(self.bundle, flash, noflash, far_flash, far_noflash, **options)
 
     def estimate_lighting(self, flash, noflash, far_flash=None, far_noflash=None, **options):
         return estimate_lighting(self.bundle, flash, noflash, far_flash, far_noflash, **options)
 
     def predict_lighting(self, flash, noflash, far_flash=None, far_noflash=None, **options) -> Lighting:
+        options.setdefault("fixed_roughness", self.fixed_roughness)
         return predict_lighting(self.bundle, flash, noflash, far_flash, far_noflash, **options)
 
     def grid_pass_inputs(
@@ -378,13 +384,63 @@ class ModelPredictor:
         return cascade_pass(self.bundle, inputs, env, **options)
 
 
-def load_predictor(path: str | Path | None = None, device: str = "auto") -> ModelPredictor:
-    """:func:`load_model` (an ``ebrenv`` model; None: the shipped one) as a :class:`ModelPredictor`."""
-    return ModelPredictor(load_model(path, device))
+class DualLossPredictor:
+    """A loaded ``dualloss`` model as a :class:`~.predictor.LightsPredictor`: maps from N photos
+    (one per point light, in the model's light order) at the model grid.
+
+    ``grid``: ``bundle.resolution``; ``lights``: the number of photos the network reads."""
+
+    def __init__(self, bundle: ModelBundle):
+        self.bundle = bundle
+
+    @property
+    def grid(self) -> int:
+        return int(self.bundle.resolution)
+
+    @property
+    def lights(self) -> int:
+        return int(self.bundle.dualloss.config.num_lights)
+
+    @torch.no_grad()
+    def predict_lights(self, photos) -> Prediction:
+        """Maps (G, G) from the N (G, G, 3) linear float32 photos at the reference exposure
+        (``env`` None: the model estimates no environment)."""
+        t0 = time.perf_counter()
+        x = torch.from_numpy(np.ascontiguousarray(np.stack(photos), dtype=np.float32))
+        x = x.permute(0, 3, 1, 2).contiguous()[None].to(self.bundle.device)
+        maps = self.bundle.dualloss(x).to_svbrdf(0)
+        return Prediction(maps, None, timings={"network": time.perf_counter() - t0})
+
+
+def as_predictor(
+    bundle: ModelBundle, fixed_roughness: float | None = None
+) -> ModelPredictor | DualLossPredictor:
+    """The predictor of a loaded model: a :class:`ModelPredictor` (``ebrenv``, with
+    ``fixed_roughness``) or a :class:`DualLossPredictor` (``dualloss``, which has no exemplars:
+    ``fixed_roughness`` is refused)."""
+    if bundle.kind == "dualloss":
+        if fixed_roughness is not None:
+            raise InputError("fixed_roughness applies to ebrenv models (a dualloss model has no exemplars)")
+        return DualLossPredictor(bundle)
+    return ModelPredictor(bundle, fixed_roughness)
+
+
+def load_predictor(
+    path: str | Path | None = None,
+    device: str = "auto",
+    expect_kind: str | None = "ebrenv",
+    fixed_roughness: float | None = None,
+) -> ModelPredictor | DualLossPredictor:
+    """:func:`load_model` (None: the shipped model; ``expect_kind`` as there) as its predictor
+    (:func:`as_predictor`): a :class:`ModelPredictor` for an ``ebrenv`` model, a
+    :class:`DualLossPredictor` for a ``dualloss`` one."""
+    return as_predictor(load_model(path, device, expect_kind), fixed_roughness)
 
 
 __all__ = [
+    "DualLossPredictor",
     "ModelPredictor",
+    "as_predictor",
     "cascade_pass",
     "grid_pass_inputs",
     "predict_lighting",

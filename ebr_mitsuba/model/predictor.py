@@ -2,8 +2,8 @@
 
 ``ebr estimate`` (:func:`ebr_mitsuba.estimate.pipeline.run_estimate`), ``ebr eval``, the benches
 and the trainer's stage-2 cache take a predictor as an argument; :class:`.predict.ModelPredictor`
-(a loaded model, :func:`.predict.load_predictor`) implements both protocols, and tests pass small
-fakes.
+(a loaded model, :func:`.predict.load_predictor`) implements the first two protocols, a dual-loss model's
+:class:`.predict.DualLossPredictor` the :class:`LightsPredictor`, and tests pass small fakes.
 
 =======================  ===============================================================================
 protocol                 surface
@@ -18,6 +18,10 @@ protocol                 surface
                          extraction), ``predict_lighting -> Lighting`` (+ exemplar selection, once
                          per capture), ``grid_pass_inputs -> PassInputs`` and ``cascade_pass`` (one
                          pass of the cascade over any block of any image)
+:class:`LightsPredictor` a five-light (dual-loss) model: ``grid``, ``lights`` (N) and
+                         ``predict_lights(photos) -> Prediction`` on N (G, G, 3) photos, one per
+                         point light (``env`` None); what ``ebr eval`` and the five-light bench take
+                         for a ``dualloss`` model (:class:`.predict.DualLossPredictor`)
 =======================  ===============================================================================
 
 The result types (:class:`Prediction`, :class:`Lighting`, :class:`PassInputs`) are plain numpy
@@ -26,8 +30,9 @@ dataclasses; this module imports neither torch nor Mitsuba.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -177,4 +182,24 @@ class StagedPredictor(Predictor, Protocol):
         ...
 
 
-__all__ = ["Lighting", "PassInputs", "Prediction", "Predictor", "StagedPredictor"]
+@runtime_checkable
+class LightsPredictor(Protocol):
+    """Photos under N known point lights at the model grid in, maps out (module docstring).
+    ``isinstance(p, LightsPredictor)`` tells it from a flash / no-flash :class:`Predictor`."""
+
+    @property
+    def grid(self) -> int:
+        """The model grid G: ``predict_lights`` takes (G, G, 3) photos."""
+        ...
+
+    @property
+    def lights(self) -> int:
+        """N: how many photos (one per light, in the model's light order) the model reads."""
+        ...
+
+    def predict_lights(self, photos: Sequence[np.ndarray]) -> Prediction:
+        """Maps (G, G) from N (G, G, 3) linear float32 photos at the reference exposure."""
+        ...
+
+
+__all__ = ["Lighting", "LightsPredictor", "PassInputs", "Prediction", "Predictor", "StagedPredictor"]
