@@ -5,7 +5,12 @@
 * ``cli.md``: every ``ebr`` subcommand's usage, options and description (its ``--help``);
 * ``plugins.md``: each Mitsuba plugin's class docstring (parameter table, XML example);
 * ``config.md``: every typed config's option table (key, type, default, range, meaning), from
-  the field metadata of :mod:`ebr_mitsuba.typedconfig`.
+  the field metadata of :mod:`ebr_mitsuba.typedconfig`;
+
+and fills in the option tables of the topic pages (:data:`TOPIC_PAGES`, when they are in the
+folder): each table sits between ``<!-- options: TITLE -->`` and ``<!-- /options -->``, TITLE the
+title of a section of ``config.md`` (:func:`config_sections`), and is rewritten from the same
+metadata (:func:`fill_tables`); the prose around it stays hand-written.
 """
 
 from __future__ import annotations
@@ -13,6 +18,7 @@ from __future__ import annotations
 import argparse
 import inspect
 import io
+import re
 from pathlib import Path
 
 from .fsutil import atomic_write_text
@@ -182,6 +188,30 @@ def config_page() -> str:
     return "".join(out)
 
 
+#: The hand-written pages whose option tables :func:`fill_tables` generates.
+TOPIC_PAGES = ("generate.md", "train.md")
+
+_TABLE_BLOCK = re.compile(r"(<!-- options: (?P<title>.+?) -->\n).*?(<!-- /options -->)", re.S)
+
+
+def fill_tables(text: str, where: str = "") -> str:
+    """``text`` with every block ``<!-- options: TITLE -->`` … ``<!-- /options -->`` holding the
+    option table of the :func:`config_sections` section TITLE (an unknown TITLE is a ValueError
+    naming it)."""
+    from .typedconfig import markdown_table
+
+    sections = {title: (prefix, cls, base) for title, prefix, cls, base in config_sections()}
+
+    def table(m: re.Match) -> str:
+        if m["title"] not in sections:
+            head = f"{where}: " if where else ""
+            raise ValueError(f"{head}<!-- options: {m['title']} -->: no such section of config.md")
+        prefix, cls, base = sections[m["title"]]
+        return f"{m.group(1)}\n{markdown_table(cls, prefix=prefix, base=base)}\n\n{m.group(3)}"
+
+    return _TABLE_BLOCK.sub(table, text)
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m ebr_mitsuba.docgen", description=__doc__)
     p.add_argument("--out", type=Path, default=Path("docs"))
@@ -190,6 +220,14 @@ def main(argv=None) -> int:
     for name, page in (("cli.md", cli_page()), ("plugins.md", plugins_page()), ("config.md", config_page())):
         atomic_write_text(args.out / name, page)
         print(f"wrote {args.out / name}")
+    for name in TOPIC_PAGES:
+        path = args.out / name
+        if path.is_file():
+            text = path.read_text()
+            filled = fill_tables(text, str(path))
+            if filled != text:
+                atomic_write_text(path, filled)
+            print(f"filled the option tables of {path}")
     return 0
 
 
