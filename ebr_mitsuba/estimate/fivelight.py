@@ -220,13 +220,12 @@ def load_dualloss(path: str | Path):
 
 
 def predict(bundle, images: list[np.ndarray]) -> SVBRDF:
-    """The network's maps for five (H, W, 3) photos at the reference exposure, in light order."""
-    import torch
+    """The network's maps for five (H, W, 3) photos at the reference exposure, in light order
+    (the model's :class:`~ebr_mitsuba.model.predict.DualLossPredictor`)."""
+    from ..model.predict import DualLossPredictor
 
-    x = torch.from_numpy(np.ascontiguousarray(np.stack(images), dtype=np.float32)).permute(0, 3, 1, 2)
-    with torch.no_grad():
-        maps = bundle.dualloss(x[None].to(bundle.device))
-    return maps.to_svbrdf(0, source="ebr estimate --lights (dual-loss network)")
+    maps = DualLossPredictor(bundle).predict_lights(images).maps
+    return dataclasses.replace(maps, source="ebr estimate --lights (dual-loss network)")
 
 
 # -- the light geometry ------------------------------------------------------------------------------
