@@ -196,18 +196,18 @@ _TABLE_BLOCK = re.compile(r"(<!-- options: (?P<title>.+?) -->\n).*?(<!-- /option
 
 def fill_tables(text: str, where: str = "") -> str:
     """``text`` with every block ``<!-- options: TITLE -->`` … ``<!-- /options -->`` holding the
-    option table of the :func:`config_sections` section TITLE (an unknown TITLE is a ValueError
-    naming it)."""
+    option table of the :func:`config_sections` section TITLE, keys without the table prefix (the
+    page's heading names the table); an unknown TITLE is a ValueError naming it."""
     from .typedconfig import markdown_table
 
-    sections = {title: (prefix, cls, base) for title, prefix, cls, base in config_sections()}
+    sections = {title: (cls, base) for title, _, cls, base in config_sections()}
 
     def table(m: re.Match) -> str:
         if m["title"] not in sections:
             head = f"{where}: " if where else ""
             raise ValueError(f"{head}<!-- options: {m['title']} -->: no such section of config.md")
-        prefix, cls, base = sections[m["title"]]
-        return f"{m.group(1)}\n{markdown_table(cls, prefix=prefix, base=base)}\n\n{m.group(3)}"
+        cls, base = sections[m["title"]]
+        return f"{m.group(1)}\n{markdown_table(cls, base=base)}\n\n{m.group(3)}"
 
     return _TABLE_BLOCK.sub(table, text)
 

@@ -24,11 +24,11 @@ def test_topic_page_tables_are_generated_and_current(name):
 
 
 def test_fill_tables_writes_the_section_table_and_names_an_unknown_one():
-    title, prefix, cls, _ = next(s for s in config_sections() if s[1] == "dataset.")
+    title = next(title for title, prefix, *_ in config_sections() if prefix == "dataset.")
     page = f"intro\n<!-- options: {title} -->\nstale\n<!-- /options -->\noutro\n"
     filled = fill_tables(page)
     assert filled.startswith("intro\n") and filled.endswith("<!-- /options -->\noutro\n")
-    assert "stale" not in filled and "`dataset.count` | `int` | `100`" in filled
+    assert "stale" not in filled and "| `count` | `int` | `100`" in filled
     assert fill_tables(filled) == filled
     with pytest.raises(ValueError, match=r"^x\.md: <!-- options: nope -->: no such section"):
         fill_tables("<!-- options: nope -->\n<!-- /options -->", "x.md")

@@ -1,7 +1,7 @@
 """Check or preview a generated data set.
 
   ebr dataset verify DIR [--json]
-  ebr dataset sheet DIR --out sheet.png [--samples 16]
+  ebr dataset sheet DIR --out sheet.png [--samples N]
 
 verify: checks dataset.json, index.json and every sample (files present and listed in the
 manifest, sizes and SHA-256 checksums, images readable with the right size and channels and no
