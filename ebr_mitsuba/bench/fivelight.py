@@ -142,7 +142,7 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
     from ..evaluation.baselines import MeanMaps
     from ..evaluation.evaluate import _truth, estimate_predictor, evaluate, model_predictor, oracle_predictor
     from ..fsutil import atomic_write_text
-    from ..model.predict import load_predictor as load_model  # a LightsPredictor for model_predictor
+    from ..model.predict import load_predictor
 
     reason = unavailable()
     if reason:
@@ -155,7 +155,7 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
 
     runs = _runs()
     predictors = [
-        (name, model_predictor(load_model(str(path / "model.pt"), expect_kind="dualloss")))
+        (name, model_predictor(load_predictor(str(path / "model.pt"), expect_kind="dualloss")))
         for name, path in runs
     ]
     shipped = shipped_model_path()

@@ -384,7 +384,6 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
     )
     from ..fsutil import atomic_write_text
     from ..model.predict import load_predictor
-    from ..model.predict import load_predictor as load_model  # a Predictor for model_predictor (issue 11)
 
     data = os.environ.get("EBR_SPLIT_DATA")
     if not data or not Path(data).is_dir():
@@ -398,8 +397,8 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
     truth_maps = [_truth(ds[i]) for i in range(n)]
     truth_spread = [_normal_spread(t) for t in truth_maps]
 
-    predictors = [("shipped model", model_predictor(load_model(None)))]
-    predictors += [(name, model_predictor(load_model(path))) for name, path in _candidates()]
+    predictors = [("shipped model", model_predictor(load_predictor(None)))]
+    predictors += [(name, model_predictor(load_predictor(path))) for name, path in _candidates()]
     predictors.append(("oracle constant", oracle_predictor))
     train = os.environ.get("EBR_TRAIN_DATA")
     if train:

@@ -2,7 +2,7 @@
 
   ebr train CONFIG.toml [--out DIR] [--resume] [--export FILE] [--json]
 
-The config (schema: docs/train.md, defaults in ebr_mitsuba/train/config.py) names the data set
+The config (schema: docs/train.md, defaults in ebr_mitsuba/model/config.py) names the data set
 (`ebr generate`), the networks, the steps per phase and the losses. The run writes into DIR
 (default: runs/<config name>):
 
@@ -47,7 +47,7 @@ HELP = "train the networks from a TOML config (two stages, checkpoints, resume, 
 @config(error=InputError, cli=True)
 class TrainRunConfig:
     """How ``ebr train`` runs (the training itself is the TOML config's
-    :class:`~ebr_mitsuba.train.config.TrainConfig`; a bad value is an
+    :class:`~ebr_mitsuba.model.config.TrainConfig`; a bad value is an
     :class:`~ebr_mitsuba.errors.InputError` naming the flag)."""
 
     out: str | None = option(None, "output directory", metavar="DIR", shown="runs/<config name>")

@@ -63,6 +63,7 @@ from .. import __version__
 from ..errors import InputError
 from ..fsutil import atomic_dir
 from ..geometry import DEFAULT_FLASH_INTENSITY, FAR_DISTANCE, FAR_FOV, Shot
+from ..metrics import map_rmse
 from ..model.predictor import Prediction, Predictor
 from ..sgenv import SGEnvironment
 from ..svbrdf import SVBRDF
@@ -70,7 +71,6 @@ from ..typedconfig import config, option
 from . import outputs
 from .fullres import release_memory
 from .inputs import DEFAULT_FOV, DEFAULT_MAX_SHIFT, MAX_FOV, MIN_FOV, Inputs, load_inputs
-from .metrics import map_rmse
 from .refine import RefineConfig, ShotTarget, fit_flash_intensity, refine, rerender_errors
 from .resample import DEFAULT_MAX_SIZE, working_size
 

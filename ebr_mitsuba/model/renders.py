@@ -25,10 +25,10 @@
 Full-resolution inference (:mod:`ebr_mitsuba.estimate.fullres`) runs the cascade over an image
 finer than the grid, or over a tile of one: ``window = (row0, col0, full_h, full_w)`` says which
 block of the full sample grid the maps are, and both renderers then shade each pixel at its true
-position (DESIGN §3: view and light directions of the full frame, not of a frame the size of the
-tile), through the Dr.Jit renderer (flash terms included: the torch mirror was 5× slower at
-megapixels); ``scales = (k_near, k_far)`` fixes the flash scales (fitted once per capture) instead
-of fitting them to each pass (required with a window).
+position (docs/conventions.md, "Geometry and pixel grid": view and light directions of the full
+frame, not of a frame the size of the tile), through the Dr.Jit renderer (flash terms included:
+the torch mirror was 5× slower at megapixels); ``scales = (k_near, k_far)`` fixes the flash
+scales (fitted once per capture) instead of fitting them to each pass (required with a window).
 """
 
 from __future__ import annotations
