@@ -68,7 +68,8 @@ class DataFacts:
 @dataclass
 class ModelBundle:
     """Networks + configs of one model. ``kind`` ``"ebrenv"``: ``lighting`` and ``cascade`` are
-    set; ``"dualloss"``: ``dualloss`` is set. ``resolution`` is the model grid (square)."""
+    set; ``"dualloss"``: ``dualloss`` is set; ``"mair"``: ``mair`` (a :class:`~ebr_mitsuba.nets.MAIRModel`)
+    is set. ``resolution`` is the model grid (square)."""
 
     kind: str
     config: TrainConfig
@@ -76,6 +77,7 @@ class ModelBundle:
     lighting: torch.nn.Module | None = None
     cascade: torch.nn.Module | None = None
     dualloss: torch.nn.Module | None = None
+    mair: torch.nn.Module | None = None
     device: torch.device = torch.device("cpu")
     meta: dict | None = None
 
@@ -86,7 +88,7 @@ class ModelBundle:
     def nets(self) -> dict[str, torch.nn.Module]:
         return {
             name: net
-            for name in ("lighting", "cascade", "dualloss")
+            for name in ("lighting", "cascade", "dualloss", "mair")
             if (net := getattr(self, name)) is not None
         }
 
@@ -130,9 +132,13 @@ def net_configs(bundle: ModelBundle) -> dict:
 
 def build_bundle(config: TrainConfig, facts: DataFacts, device: torch.device | str = "cpu") -> ModelBundle:
     """Fresh networks for ``config`` on data with ``facts``."""
-    from ..nets import Cascade, DualLossNet, LightingNet
+    from ..nets import Cascade, DualLossNet, LightingNet, MAIRModel
 
     device = torch.device(device)
+    if config.kind == "mair":
+        return ModelBundle(
+            "mair", config, facts, mair=MAIRModel(config.mair_config()).to(device), device=device
+        )
     if config.kind == "dualloss":
         return ModelBundle(
             "dualloss",

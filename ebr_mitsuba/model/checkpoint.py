@@ -6,9 +6,10 @@ A checkpoint is a dict (``format = "ebr-checkpoint/1"``):
 key                 content
 ==================  ===========================================================================
 ``format``          ``"ebr-checkpoint/1"``
-``kind``            ``"ebrenv"`` (lighting net + cascade) or ``"dualloss"``
+``kind``            ``"ebrenv"`` (lighting net + cascade), ``"dualloss"`` or ``"mair"``
 ``config``          the training config as plain data (:meth:`TrainConfig.to_dict`)
-``model``           ``{"lighting": {...}, "cascade": {...}}`` or ``{"dualloss": {...}}``: state
+``model``           ``{"lighting": {...}, "cascade": {...}}``, ``{"dualloss": {...}}`` or
+                    ``{"mair": {...}}``: state
                     dicts (tensors; float16 in an exported model, float32 otherwise)
 ``net_config``      the network configs as plain data (enough to rebuild the nets)
 ``data``            what the model needs from its training data: ``resolution``,
@@ -44,7 +45,7 @@ from ..fsutil import atomic_path
 from .config import EBRENV_TABLES
 
 CHECKPOINT_FORMAT = "ebr-checkpoint/1"
-KINDS = ("ebrenv", "dualloss")
+KINDS = ("ebrenv", "dualloss", "mair")
 REQUIRED = ("format", "kind", "config", "model", "net_config", "data", "step")
 
 
@@ -88,7 +89,7 @@ def upgrade_config(kind: str, config):
     """The stored ``config`` of a ``kind`` checkpoint as :meth:`TrainConfig.to_dict` writes it now:
     without the tables that apply to other kinds (older dualloss checkpoints carried
     ``stages``, ``selection`` and ``extract``). Anything but a dict is returned unchanged."""
-    if kind == "ebrenv" or not isinstance(config, dict):
+    if kind != "dualloss" or not isinstance(config, dict):
         return config
     return {k: v for k, v in config.items() if k not in EBRENV_TABLES}
 

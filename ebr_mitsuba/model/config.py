@@ -12,13 +12,14 @@ in the one format of :mod:`ebr_mitsuba.typedconfig`.
 
 A config has a top-level ``kind`` and five tables::
 
-    kind = "ebrenv"                 # "ebrenv" (lighting net + cascade) or "dualloss"
+    kind = "ebrenv"                 # "ebrenv" (lighting net + cascade), "dualloss" or "mair"
 
     [data]                          # DataConfig
-    [model]                         # ebrenv: lighting/cascade options; dualloss: DualLossConfig
+    [model]                         # ebrenv: lighting/cascade options; dualloss: DualLossConfig;
+                                    # mair: MAIRConfig
     [train]                         # TrainOptions (seed, batch, learning rate, device, logging)
-    [stages]                        # ebrenv: steps per phase (StageSteps)
-    [loss]                          # LossConfig
+    [stages]                        # ebrenv: steps per phase (StageSteps); mair: MAIRStageSteps
+    [loss]                          # LossConfig; mair: MAIRLossConfig
 
 **[data]** (:class:`DataConfig`)
 
@@ -28,7 +29,8 @@ A config has a top-level ``kind`` and five tables::
 ``capture`` (``near``), ``use_exemplars``, ``use_cascade``, ``use_refinement`` (the §5.3.2
 ablations), ``log_eps``. The number of lighting-net exemplars and their roughness values come
 from the data set (``[exemplars].env_roughness``). (dualloss) — the fields of
-:class:`ebr_mitsuba.nets.DualLossConfig`.
+:class:`ebr_mitsuba.nets.DualLossConfig`. (mair) — the fields of
+:class:`ebr_mitsuba.nets.MAIRConfig` (``size`` = ``"tiny"`` | ``"small"`` | ``"paper"`` or a table).
 
 **[train]** (:class:`TrainOptions`)
 
@@ -47,11 +49,20 @@ Their tables with these defaults are in ``docs/config.md``.
 
 [stages], [selection] and [extract] apply to ``kind = "ebrenv"`` alone: a dualloss config that
 sets one is refused, and :meth:`TrainConfig.to_dict` (the config a checkpoint carries) leaves
-them out for a dualloss config.
+them out for a dualloss config. A ``mair`` config has [stages] (its own, :class:`MAIRStageSteps`)
+and refuses [selection] and [extract].
 
 **[loss]** (:class:`LossConfig`)
 
 .. options:: LossConfig
+
+**[stages]** (mair, :class:`MAIRStageSteps`; MAIR's stages in order, 0 skips one)
+
+.. options:: MAIRStageSteps
+
+**[loss]** (mair, :class:`MAIRLossConfig`; the MAIR losses of :mod:`ebr_mitsuba.nets.losses`)
+
+.. options:: MAIRLossConfig
 """
 
 from __future__ import annotations
@@ -75,8 +86,9 @@ from ..typedconfig import (
     unknown_keys,
 )
 
-KINDS = ("ebrenv", "dualloss")
+KINDS = ("ebrenv", "dualloss", "mair")
 PHASES = ("lighting", "diffuse", "specular", "refinement", "finetune")
+MAIR_PHASES = ("normal", "lighting", "brdf")  # MAIRModel.STAGES, trained in this order
 
 
 @config
@@ -98,7 +110,7 @@ class TrainOptions:
     """The ``[train]`` table."""
 
     seed: int = option(0, "seeds torch, the sample order and the loss sampling")
-    steps: int = option(1000, "dualloss: training steps (ebrenv: see [stages])", minimum=0)
+    steps: int = option(1000, "dualloss: training steps (ebrenv, mair: see [stages])", minimum=0)
     batch_size: int = option(8, "samples per step (per process under DDP)", minimum=1)
     lr: float = option(1e-3, "initial learning rate of every phase (Adam)", above=0)
     lr_final: float = option(1e-5, "learning rate at the end of a phase (cosine decay); at most lr", above=0)
@@ -156,6 +168,50 @@ class LossConfig:
             )
 
 
+@config
+class MAIRStageSteps:
+    """The ``[stages]`` table (kind = "mair"): steps of each MAIR stage, trained in this order."""
+
+    normal: int = option(1000, "normal net: g1 angular L1 + g2 MSE on the normals", minimum=0)
+    lighting: int = option(
+        1000, "per-pixel SG lighting net: g4 on the incident lighting + g5 visibility entropy", minimum=0
+    )
+    brdf: int = option(
+        1000,
+        "SpecNet, MVANet and RefineNet (normal and lighting nets frozen): g3 diffuse, g2 specular and "
+        "roughness, multi-view re-render loss",
+        minimum=0,
+    )
+
+    def steps(self, phase: str) -> int:
+        return int(getattr(self, phase))
+
+
+@config
+class MAIRLossConfig:
+    """The ``[loss]`` table (kind = "mair"): weights of MAIR's losses, each stage its own terms."""
+
+    angular: float = option(1.0, "normal stage: g1, masked angular L1 of the normals (radians)", minimum=0)
+    normal: float = option(1.0, "normal stage: g2, masked MSE of the normals", minimum=0)
+    lighting: float = option(
+        1.0,
+        "lighting stage: g4, scale-invariant log-MSE of the per-pixel incident radiance against "
+        "the data set's (env.json)",
+        minimum=0,
+    )
+    visibility: float = option(0.01, "lighting stage: g5, binary entropy of the SG visibility μ", minimum=0)
+    lighting_rows: int = option(8, "g4 direction grid: polar rows over the upper hemisphere", minimum=1)
+    lighting_cols: int = option(16, "g4 direction grid: azimuth columns", minimum=1)
+    diffuse: float = option(1.0, "brdf stage: g3, scale-invariant MSE of the diffuse map", minimum=0)
+    specular: float = option(1.0, "brdf stage: g2, MSE of the specular map", minimum=0)
+    roughness: float = option(1.0, "brdf stage: g2, MSE of the roughness map", minimum=0)
+    rerender: float = option(
+        1.0,
+        "brdf stage: multi-view re-render loss Σ_k w_k‖I_k − τ_d Ĩ_d,k − τ_s Ĩ_s,k‖² (least-squares τ)",
+        minimum=0,
+    )
+
+
 @dataclass(frozen=True)
 class TrainConfig:
     """A whole training config (see the module docstring). ``model`` is the raw [model] table,
@@ -166,16 +222,16 @@ class TrainConfig:
     data: DataConfig
     model: dict
     train: TrainOptions = field(default_factory=TrainOptions)
-    stages: StageSteps = field(default_factory=StageSteps)
-    loss: LossConfig = field(default_factory=LossConfig)
+    stages: StageSteps | MAIRStageSteps = field(default_factory=StageSteps)
+    loss: LossConfig | MAIRLossConfig = field(default_factory=LossConfig)
     selection: dict = field(default_factory=dict)
     extract: dict = field(default_factory=dict)
     source: str = "<memory>"
 
     def to_dict(self) -> dict:
         """Plain data (for the checkpoint and ``config.json``): the tables of this ``kind`` only
-        (a dualloss config has no [stages], [selection] or [extract]), so that
-        :func:`config_from_dict` accepts what it wrote."""
+        (a dualloss config has no [stages], [selection] or [extract], a mair config no
+        [selection] or [extract]), so that :func:`config_from_dict` accepts what it wrote."""
         out = {
             "kind": self.kind,
             "data": dataclasses.asdict(self.data),
@@ -186,9 +242,8 @@ class TrainConfig:
             "selection": _plain(self.selection),
             "extract": _plain(self.extract),
         }
-        if self.kind != "ebrenv":
-            for name in EBRENV_TABLES:
-                del out[name]
+        for name in EBRENV_TABLES if self.kind == "dualloss" else MAIR_DROPPED if self.kind == "mair" else ():
+            del out[name]
         return out
 
     def select_config(self):
@@ -231,10 +286,16 @@ class TrainConfig:
 
         return DualLossConfig.from_dict(self.model, self.source, key="model")
 
+    def mair_config(self):
+        from ..nets import MAIRConfig
+
+        return MAIRConfig.from_dict(self.model, self.source, key="model")
+
 
 SELECT_PRESET = "training"  # the SELECT_PRESETS entry [selection] overrides
 EXTRACT_PRESET = "training"  # the EXTRACT_PRESETS entry [extract] overrides
 EBRENV_TABLES = ("stages", "selection", "extract")  # tables that apply to kind = "ebrenv" alone
+MAIR_DROPPED = ("selection", "extract")  # ebrenv tables a mair config has no use for
 EBRENV_MODEL_KEYS = ("size", "capture", "use_exemplars", "use_cascade", "use_refinement", "log_eps")
 
 
@@ -253,6 +314,7 @@ def _expand(text: str, source: str, key: str, base: Path) -> str:
 
 
 TABLES = {"data": DataConfig, "train": TrainOptions, "stages": StageSteps, "loss": LossConfig}
+MAIR_TABLES = {"stages": MAIRStageSteps, "loss": MAIRLossConfig}  # replace TABLES' for kind = "mair"
 
 
 def parse_config(doc: dict[str, Any], source: str = "<memory>", base_dir: str | Path = ".") -> TrainConfig:
@@ -260,7 +322,8 @@ def parse_config(doc: dict[str, Any], source: str = "<memory>", base_dir: str | 
     allowed = ("kind", "data", "model", "train", "stages", "loss", "selection", "extract")
     unknown_keys(doc, allowed, where=source, noun="table or key")
     kind = convert(doc.get("kind", "ebrenv"), str, Meta("", choices=KINDS), where=source, key="kind")
-    tables = {name: from_dict(cls, doc.get(name) or {}, source, key=name) for name, cls in TABLES.items()}
+    classes = {**TABLES, **MAIR_TABLES} if kind == "mair" else TABLES
+    tables = {name: from_dict(cls, doc.get(name) or {}, source, key=name) for name, cls in classes.items()}
     data, train = tables["data"], tables["train"]
     if not data.train:
         raise ConfigError(f"{source}: data.train: is required (a data set directory from 'ebr generate')")
@@ -271,10 +334,10 @@ def parse_config(doc: dict[str, Any], source: str = "<memory>", base_dir: str | 
     if kind == "dualloss" and doc.get("stages") is not None:
         raise ConfigError(f"{source}: [stages] is for kind = 'ebrenv'; a dualloss config sets [train].steps")
     for name in ("selection", "extract"):
-        if kind == "dualloss" and doc.get(name) is not None:
+        if kind != "ebrenv" and doc.get(name) is not None:
             raise ConfigError(
                 f"{source}: [{name}] is for kind = 'ebrenv' (exemplars and SG lighting); remove it "
-                f"from this dualloss config"
+                f"from this {kind} config"
             )
     raw = {}
     for name in ("model", "selection", "extract"):
@@ -293,6 +356,8 @@ def parse_config(doc: dict[str, Any], source: str = "<memory>", base_dir: str | 
         config.cascade_config()
         config.select_config()
         config.extract_config()
+    elif kind == "mair":
+        config.mair_config()
     else:
         config.dualloss_config()
     return config
@@ -318,6 +383,9 @@ __all__ = [
     "KINDS",
     "SELECT_PRESET",
     "LossConfig",
+    "MAIRLossConfig",
+    "MAIRStageSteps",
+    "MAIR_PHASES",
     "PHASES",
     "StageSteps",
     "TrainConfig",
@@ -328,5 +396,11 @@ __all__ = [
 ]
 
 __doc__ = document(
-    __doc__, DataConfig=DataConfig, TrainOptions=TrainOptions, StageSteps=StageSteps, LossConfig=LossConfig
+    __doc__,
+    DataConfig=DataConfig,
+    TrainOptions=TrainOptions,
+    StageSteps=StageSteps,
+    LossConfig=LossConfig,
+    MAIRStageSteps=MAIRStageSteps,
+    MAIRLossConfig=MAIRLossConfig,
 )

@@ -6,8 +6,9 @@ once the cache it reads exists. A phase holds everything it reads as constructor
 :class:`PhaseInputs` every phase shares (training data, device, capture, loss options), the module
 whose forward it runs (``top``; the trainer wraps it in DDP and hands the wrapped one back as
 ``model``) and, for the cascade phases, its cache (stage 1 or stage 2, :mod:`.cache`) and its
-forward (:func:`first_stage_forward` or :func:`full_forward`). Its one method the training loop
-calls is ``loss(model, idx, gen) → (loss, {term: value})``.
+forward (:func:`first_stage_forward` or :func:`full_forward`); a MAIR phase (:class:`MAIRPhase`)
+its stage and the multi-view geometry (:class:`MultiViewInputs`). Its one method the training
+loop calls is ``loss(model, idx, gen) → (loss, {term: value})``.
 """
 
 from __future__ import annotations
@@ -18,10 +19,21 @@ from typing import NamedTuple
 
 import torch
 
-from ..model.config import LossConfig, TrainConfig
+from ..model.config import LossConfig, MAIRLossConfig, TrainConfig
 from ..model.renders import cascade_forward, diffuse_flash_renderer
 from ..nets import Maps
-from ..nets.losses import MapWeights, parameter_l1, rendering_loss, sample_view_light_pairs
+from ..nets.losses import (
+    MapWeights,
+    entropy_regulariser,
+    masked_angular_l1,
+    masked_mse,
+    multiview_rerender_loss,
+    parameter_l1,
+    rendering_loss,
+    sample_view_light_pairs,
+    scale_invariant_log_mse,
+    scale_invariant_mse,
+)
 from ..nets.transforms import log_input
 from .data import CAPTURE_SHOTS, TrainingData
 
@@ -41,10 +53,10 @@ class PhaseInputs:
 
     data: TrainingData
     device: torch.device
-    capture: str  # "near" or "near-far" (ebrenv; "near" for dualloss, unused there)
+    capture: str  # "near" or "near-far" (ebrenv; "near" for dualloss and mair, unused there)
     flash_intensity: float  # the data set's nominal flash intensity
     weights: MapWeights
-    loss: LossConfig
+    loss: LossConfig | MAIRLossConfig
 
     def target(self, idx: torch.Tensor) -> Maps:
         return Maps.unstack(self.data.maps[idx].to(self.device))
@@ -224,6 +236,130 @@ class CascadePhase(Phase):
         return loss, parts
 
 
+@dataclass(frozen=True)
+class MultiViewInputs:
+    """What a MAIR phase reads besides :class:`PhaseInputs`: the 3×3 capture's geometry on the
+    data set's grid (:mod:`ebr_mitsuba.nets.mair_views`) and g4's direction grid.
+
+    ``shots``: the data set's index of each view, in :func:`~ebr_mitsuba.nets.mair_views.multiview_shots`
+    order; ``directions`` (N, 3, H, W) and ``weights`` (N, 1, H, W) the views' per-pixel directions
+    and in-frame weights; ``cameras`` (N, 3) the camera (= flash) positions; ``lighting_directions``
+    (D, 3) where g4 compares the incident radiance.
+    """
+
+    shots: tuple[int, ...]
+    directions: torch.Tensor
+    weights: torch.Tensor
+    cameras: torch.Tensor
+    lighting_directions: torch.Tensor
+
+    @classmethod
+    def build(cls, data: TrainingData, loss: MAIRLossConfig, device) -> MultiViewInputs:
+        from ..nets.mair_lighting import hemisphere_directions
+        from ..nets.mair_views import in_frame_weights, multiview_shots, view_direction_maps
+
+        shots = multiview_shots()
+        h, w = data.maps.shape[-2:]
+        return cls(
+            tuple(data.shot(s.name) for s in shots),
+            view_direction_maps(h, w, shots).to(device),
+            in_frame_weights(h, w, shots).to(device),
+            torch.tensor([s.camera for s in shots], dtype=torch.float32, device=device),
+            hemisphere_directions(loss.lighting_rows, loss.lighting_cols, device=device),
+        )
+
+
+class MAIRBatch(NamedTuple):
+    """One batch of a MAIR phase: ``views`` (B, N, 3, H, W) — the photos at the reference exposure
+    (clamped at 0) times their in-frame weights, so the networks see what a rectified camera
+    capture shows —, ``directions`` (B, N, 3, H, W), ``weights`` (B, N, 1, H, W), the true maps
+    and the true incident radiance (B, 3D, H, W) at the g4 directions."""
+
+    views: torch.Tensor
+    directions: torch.Tensor
+    weights: torch.Tensor
+    target: Maps
+    radiance: torch.Tensor
+
+
+def incident_radiance(lobes: Sequence[torch.Tensor], directions: torch.Tensor) -> torch.Tensor:
+    """Radiance ``Σ_k μ_k exp(λ_k(ξ_k·ω − 1))`` of each sample's lobes (K_b, 7) at directions
+    (D, 3): (B, D, 3)."""
+    out = []
+    for lb in lobes:
+        lb = lb.to(directions)
+        cos = directions @ lb[:, :3].T  # (D, K)
+        out.append(torch.exp(lb[:, 3] * (cos - 1.0)) @ lb[:, 4:])
+    return torch.stack(out)
+
+
+class MAIRPhase(Phase):
+    """One of MAIR's stages (``normal``, ``lighting``, ``brdf``: :data:`MAIRModel.STAGES`), trained
+    in turn with the others frozen, on the 9 views of each multi-view sample (``views``, a
+    :class:`MultiViewInputs`). ``top`` is the module whose forward runs: the normal net, the
+    lighting net, or the whole model for ``brdf``; ``mair`` the :class:`~ebr_mitsuba.nets.MAIRModel`.
+
+    Losses (weights of :class:`~ebr_mitsuba.model.config.MAIRLossConfig`):
+
+    * ``normal``: g1 angular L1 + g2 MSE of the normals;
+    * ``lighting``: g4 scale-invariant log-MSE of the per-pixel incident radiance at the
+      ``lighting_rows × lighting_cols`` hemisphere grid against the data set's lobes (``env.json``,
+      in photo units: on the unoccluded plane every pixel sees that distant environment, visibility
+      1), + g5 binary entropy of the visibility μ;
+    * ``brdf``: g3 scale-invariant MSE of the diffuse map, g2 MSE of the specular and roughness
+      maps, the multi-view re-render loss (:func:`~ebr_mitsuba.nets.mair_render.multiview_renders`
+      under the predicted lighting and each view's flash, least-squares τ_d, τ_s).
+    """
+
+    def __init__(self, plan: PhasePlan, inputs: PhaseInputs, mair: torch.nn.Module, views: MultiViewInputs):
+        top = {"normal": mair.normal_net, "lighting": mair.lighting_net}.get(plan.name, mair)
+        super().__init__(plan, inputs, top)
+        self.mair, self.views = mair, views
+
+    def batch(self, idx: torch.Tensor) -> MAIRBatch:
+        x, d, v = self.inputs, self.inputs.data, self.views
+        photos = d.photos[idx][:, list(v.shots)].to(x.device).clamp_min(0.0)
+        b = photos.shape[0]
+        weights = v.weights.expand(b, *v.weights.shape)
+        directions = v.directions.expand(b, *v.directions.shape)
+        radiance = None
+        if self.name == "lighting":
+            r = incident_radiance(d.lobes(idx), v.lighting_directions)  # (B, D, 3)
+            h, w = photos.shape[-2:]
+            radiance = r.reshape(b, -1, 1, 1).expand(b, r.shape[1] * 3, h, w)
+        return MAIRBatch(photos * weights, directions, weights, x.target(idx), radiance)
+
+    def loss(self, model, idx, gen):
+        c: MAIRLossConfig = self.inputs.loss
+        bt = self.batch(idx)
+        if self.name == "normal":
+            normal = model(bt.views, bt.directions, bt.weights)
+            g1 = masked_angular_l1(normal, bt.target.normal)
+            g2 = masked_mse(normal, bt.target.normal)
+            return c.angular * g1 + c.normal * g2, {"angular": g1, "normal_mse": g2}
+        if self.name == "lighting":
+            with torch.no_grad():
+                normal = self.mair.normal_net(bt.views, bt.directions, bt.weights)
+            lighting = model(bt.views, bt.directions, normal, bt.weights)
+            pred = lighting.radiance_image(self.views.lighting_directions)
+            g4 = scale_invariant_log_mse(pred, bt.radiance)
+            g5 = entropy_regulariser(lighting.visibility_distribution(), dim=1)
+            return c.lighting * g4 + c.visibility * g5, {"lighting": g4, "visibility": g5}
+        from ..nets.mair_render import multiview_renders
+
+        out = model(bt.views, bt.directions, bt.weights)
+        m, t = out.maps, bt.target
+        g3 = scale_invariant_mse(m.diffuse, t.diffuse)
+        spec = masked_mse(m.specular, t.specular)
+        rough = masked_mse(m.roughness, t.roughness)
+        diffuse_r, specular_r = multiview_renders(
+            m, out.lighting, bt.directions, self.views.cameras, self.inputs.flash_intensity
+        )
+        rr, _ = multiview_rerender_loss(bt.views, diffuse_r, specular_r, bt.weights)
+        loss = c.diffuse * g3 + c.specular * spec + c.roughness * rough + c.rerender * rr
+        return loss, {"diffuse": g3, "specular": spec, "roughness": rough, "rerender": rr}
+
+
 FIRST_STAGE_KEYS = {
     "joint": ("normal", "diffuse", "specular", "roughness"),
     "diffuse": ("normal", "diffuse"),
@@ -236,6 +372,13 @@ def plan_phases(config: TrainConfig, bundle) -> list[PhasePlan]:
     c, t = config, config.train
     if c.kind == "dualloss":
         return [PhasePlan("dualloss", t.steps, (bundle.dualloss,), t.lr)]
+    if c.kind == "mair":
+        m = bundle.mair
+        plans = [
+            PhasePlan(stage, c.stages.steps(stage), tuple(getattr(m, n) for n in names), t.lr)
+            for stage, names in m.STAGES.items()
+        ]
+        return [p for p in plans if p.steps > 0]
     cas = bundle.cascade
     out = [PhasePlan("lighting", c.stages.lighting, (bundle.lighting,), t.lr)]
     if cas.joint_net is not None:
@@ -256,6 +399,10 @@ def build_phase(plan: PhasePlan, inputs: PhaseInputs, bundle, caches) -> Phase:
     """The phase of ``plan``, with the cache it reads from ``caches`` (a :class:`.cache.RunCaches`:
     filled and loaded here when first needed — stage 1 only with exemplars)."""
     name = plan.name
+    if bundle.kind == "mair":
+        return MAIRPhase(
+            plan, inputs, bundle.mair, MultiViewInputs.build(inputs.data, inputs.loss, inputs.device)
+        )
     if name == "lighting":
         return LightingPhase(plan, inputs, bundle.lighting)
     if name == "dualloss":
@@ -277,11 +424,15 @@ __all__ = [
     "CascadePhase",
     "DualLossPhase",
     "LightingPhase",
+    "MAIRBatch",
+    "MAIRPhase",
+    "MultiViewInputs",
     "Phase",
     "PhaseInputs",
     "PhasePlan",
     "build_phase",
     "first_stage_forward",
     "full_forward",
+    "incident_radiance",
     "plan_phases",
 ]

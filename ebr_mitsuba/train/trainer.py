@@ -24,6 +24,13 @@ phase           trains (others frozen)          inputs and loss
 five-light data set: parameter L1 + ``render`` × the rendering loss (10 view/light pairs, 5 with a
 forced highlight, Dr.Jit renderer through ``dr.wrap``).
 
+**MAIR** (``kind = "mair"``, a ``multi-view`` data set of texture-space views, i.e. made by the
+fast renderer): MAIR's stages in turn, ``[stages]`` giving their steps (:class:`.phases.MAIRPhase`):
+``normal`` (g1 + g2 on the normals), ``lighting`` (g4 on the per-pixel incident radiance + g5 on
+the visibility), ``brdf`` (g3 diffuse, g2 specular and roughness, the multi-view re-render loss);
+weights in ``[loss]`` (:class:`~ebr_mitsuba.model.config.MAIRLossConfig`). The network sees the 9
+views times their in-frame weights, as a rectified camera capture shows them.
+
 **Near-far** (``[model].capture = "near-far"``, a ``near-far`` data set): the lighting net takes
 the four shots (flash, no-flash, far flash, far no-flash; :data:`.data.CAPTURE_SHOTS`) and still
 predicts the near exemplars and the near flash-only image; the diffuse and specular nets see the
@@ -194,7 +201,11 @@ class Trainer:
             self.device,
             self.capture,
             self.facts.flash_intensity,
-            MapWeights(config.loss.normal, config.loss.diffuse, config.loss.specular, config.loss.roughness),
+            MapWeights()
+            if config.kind == "mair"  # MAIR weighs its own terms (MAIRLossConfig)
+            else MapWeights(
+                config.loss.normal, config.loss.diffuse, config.loss.specular, config.loss.roughness
+            ),
             config.loss,
         )
         bar = self.progress if self.dist.main else None
@@ -224,6 +235,9 @@ class Trainer:
                     f"(ebr generate with [capture] setup = 'five-light')"
                 )
             return
+        if self.config.kind == "mair":
+            self._check_multiview(have, data)
+            return
         want = self.capture
         if have != want:
             fix = (
@@ -232,6 +246,24 @@ class Trainer:
             raise InputError(
                 f"{data}: a '{have}' data set; {self.config.source} has [model].capture = '{want}' "
                 f"and needs a '{want}' one ({fix}generate one with [capture] setup = '{want}')"
+            )
+
+    def _check_multiview(self, have: str, data: str) -> None:
+        """A mair config needs a multi-view data set whose views lie on the sample grid (the fast
+        renderer's texture-space renders); Mitsuba's are camera images, not rectified yet."""
+        if have != "multi-view":
+            raise InputError(
+                f"{data}: a '{have}' data set; a mair config needs a 'multi-view' one "
+                f"(ebr generate with [capture] setup = 'multi-view', e.g. configs/data_tiny_multiview.toml)"
+            )
+        from ..data import store
+
+        doc = store.read_doc(Path(data) / store.DATASET_JSON, store.DATASET_FORMAT, "regenerate it")
+        renderer = (doc.get("renderer") or {}).get("name")
+        if renderer != "fast":
+            raise InputError(
+                f"{data}: multi-view views rendered by '{renderer}' are camera images; MAIR training "
+                f"takes texture-space views on the sample grid: generate with [render] renderer = 'fast'"
             )
 
     def _prepare_out(self) -> None:
