@@ -67,7 +67,7 @@ def test_quick_page_scores_every_run_and_baseline(runs, tiny5, tmp_path, monkeyp
         assert "| paper, dual loss (their test set) |" in text and "its test set differs" in models
         assert f"| dual loss | {dual['per_map_rmse']['normal']:.4f} |" in text
         assert f"{dual['metal_rough']['base colour']:.4f} | {dual['metal_rough']['metallic']:.4f}" in text
-    assert "No ablation measured yet" in "\n".join(bench.models_section(None))
+    assert "once `ebr bench fivelight` has written `fivelight.json`" in "\n".join(bench.models_section(None))
 
 
 def test_refuses_a_missing_data_set_and_a_bad_run_list(runs, tiny5, tmp_path, monkeypatch, capsys):

@@ -31,7 +31,14 @@ def models_section(ablation: dict | None) -> list[str]:
         "no-flash model on the same materials: [fivelight.md](fivelight.md) (`ebr bench fivelight`)."
     )
     if not ablation or not ablation.get("runs"):
-        return lines + [link, "", "(No ablation measured yet: run `ebr bench fivelight`.)", ""]
+        return lines + [
+            link,
+            "",
+            "(The ablation's table appears here once `ebr bench fivelight` has written "
+            f"`{ABLATION_FILE}` beside this page; until then [fivelight.md](fivelight.md) has the last "
+            "one measured.)",
+            "",
+        ]
     verdict = ablation_lines(ablation["runs"], list(ablation["runs"]))
     return lines + [
         link,
