@@ -7,6 +7,7 @@ fixture       config                                  content
 ``tiny``      ``configs/data_tiny.toml``              4 near samples at 32², fast renderer
 ``tiny_nf``   ``configs/data_tiny_near_far.toml``     4 near-far samples (four shots) at 32²
 ``tiny5``     ``configs/data_tiny_five_light.toml``   4 five-light samples at 32²
+``tiny_mv``   ``configs/data_tiny_multiview.toml``    4 multi-view samples (3×3 views) at 32²
 ============  ======================================  ================================================
 
 The data sets are shared by every test of the session: read them, never change them. A test that
@@ -100,3 +101,9 @@ def tiny_nf(tmp_path_factory) -> Path:
 def tiny5(tmp_path_factory) -> Path:
     """``configs/data_tiny_five_light.toml`` (module docstring: shared, read-only)."""
     return generate_tiny("data_tiny_five_light.toml", tmp_path_factory.mktemp("tiny5") / "data")
+
+
+@pytest.fixture(scope="session")
+def tiny_mv(tmp_path_factory) -> Path:
+    """``configs/data_tiny_multiview.toml`` (module docstring: shared, read-only)."""
+    return generate_tiny("data_tiny_multiview.toml", tmp_path_factory.mktemp("tiny_mv") / "data")

@@ -21,7 +21,7 @@ import torch
 from ebr_mitsuba.cli import main
 from ebr_mitsuba.errors import ConfigError, InputError
 from ebr_mitsuba.model import checkpoint as ck
-from ebr_mitsuba.model.config import PHASES, load_config, parse_config
+from ebr_mitsuba.model.config import KINDS, MAIR_PHASES, PHASES, load_config, parse_config
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "configs"
@@ -29,6 +29,7 @@ TRAIN_CONFIGS = sorted(p.name for p in CONFIGS.glob("*.toml") if not p.name.star
 SLOW_CONFIGS = {"train_paper.toml", "dualloss.toml"}  # full-size networks: seconds per step on a CPU
 FIXTURE_CONFIG = "train_tiny.toml"  # trained by the tiny_model fixture (checked there)
 NEAR_FAR_SMOKE = "train_tiny_near_far.toml"  # trained by tests/test_train_near_far.py
+MAIR_SMOKE = "mair_tiny.toml"  # trained by tests/test_train_mair.py
 
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")  # conftest: torch on one thread
@@ -46,6 +47,8 @@ def _smoke_doc(name: str, data: Path) -> dict:
             stages[phase] = 0 if stages.get(phase, 1) == 0 else 2
         stages["finetune_samples"] = 1
         doc["extract"] = {"iters": 3, "max_lobes": 4}
+    elif doc["kind"] == "mair":
+        doc["stages"] = dict.fromkeys(MAIR_PHASES, 2)
     else:
         train["steps"] = 2
     return doc
@@ -85,7 +88,7 @@ def test_every_shipped_config_parses(monkeypatch, tmp_path):
     for name in TRAIN_CONFIGS:
         config = load_config(CONFIGS / name)
         assert config.data.train == str(tmp_path), name
-        assert config.to_dict()["kind"] in ("ebrenv", "dualloss")
+        assert config.to_dict()["kind"] in KINDS
 
 
 def test_config_errors_name_file_and_key(tmp_path, monkeypatch):
@@ -151,13 +154,15 @@ def test_checkpoint_round_trip_and_errors(tiny_model, tmp_path):
 
 @pytest.mark.parametrize(
     "name",
-    [n for n in TRAIN_CONFIGS if n not in SLOW_CONFIGS | {FIXTURE_CONFIG, NEAR_FAR_SMOKE}]
+    [n for n in TRAIN_CONFIGS if n not in SLOW_CONFIGS | {FIXTURE_CONFIG, NEAR_FAR_SMOKE, MAIR_SMOKE}]
     + [pytest.param(n, marks=pytest.mark.slow) for n in sorted(SLOW_CONFIGS)],
 )
-def test_every_config_trains_two_steps(name, tiny, tiny5, tiny_nf, tmp_path):
+def test_every_config_trains_two_steps(name, tiny, tiny5, tiny_nf, tiny_mv, tmp_path):
     raw = tomllib.loads((CONFIGS / name).read_text())
     if raw.get("kind") == "dualloss":
         data = tiny5
+    elif raw.get("kind") == "mair":
+        data = tiny_mv
     elif raw.get("model", {}).get("capture") == "near-far":
         data = tiny_nf
     else:
