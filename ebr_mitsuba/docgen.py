@@ -154,6 +154,10 @@ def config_sections() -> list[tuple[str, str, type, object]]:
     ]
     out += [(f"`ebr train` [{name}]", f"{name}.", cls, None) for name, cls in train.TABLES.items()]
     out += [
+        (f'`ebr train` [{name}] (`kind = "mair"`)', f"{name}.", cls, None)
+        for name, cls in train.MAIR_TABLES.items()
+    ]
+    out += [
         (
             "`ebr train` [selection] (preset `training`)",
             "selection.",
@@ -165,7 +169,7 @@ def config_sections() -> list[tuple[str, str, type, object]]:
         ("networks: CascadeConfig", "", CascadeConfig, None),
         ("networks: NAFNetSize", "", NAFNetSize, None),
         ('networks: DualLossConfig (`kind = "dualloss"` [model])', "model.", DualLossConfig, None),
-        ("networks: MAIRConfig", "", MAIRConfig, None),
+        ('networks: MAIRConfig (`kind = "mair"` [model])', "model.", MAIRConfig, None),
         ("networks: MAIRSize", "", MAIRSize, None),
         ("networks: UNetSize", "", UNetSize, None),
     ]
@@ -189,7 +193,7 @@ def config_page() -> str:
 
 
 #: The hand-written pages whose option tables :func:`fill_tables` generates.
-TOPIC_PAGES = ("generate.md", "train.md")
+TOPIC_PAGES = ("generate.md", "train.md", "mair.md")
 
 _TABLE_BLOCK = re.compile(r"(<!-- options: (?P<title>.+?) -->\n).*?(<!-- /options -->)", re.S)
 

@@ -1,4 +1,4 @@
-"""The option tables of the topic pages (docs/generate.md, docs/train.md) are generated from the
+"""The option tables of the topic pages (docs/generate.md, docs/train.md, docs/mair.md) are generated from the
 configs' field metadata by ``python -m ebr_mitsuba.docgen`` (issue 11): none is hand-written, and
 the pages in the repository are current."""
 

@@ -203,3 +203,61 @@ def test_mair_refuses_other_data_and_bad_configs(tiny_mv, tmp_path):
         doc = {**_doc(tiny_mv), **change}
         with pytest.raises(ConfigError, match=pattern):
             parse_config(doc, "bad.toml")
+
+
+def test_rerender_loss_fits_the_two_scales():
+    from ebr_mitsuba.nets.losses import multiview_rerender_loss
+
+    g = torch.Generator().manual_seed(0)
+    d, s = torch.rand(2, 9, 3, 8, 8, generator=g), torch.rand(2, 9, 3, 8, 8, generator=g)
+    views = 2.0 * d + 0.5 * s
+    loss, tau = multiview_rerender_loss(views, d, s)
+    assert float(loss) < 1e-8 and torch.allclose(tau, torch.tensor([[2.0, 0.5]] * 2), atol=1e-4)
+    w = (torch.rand(2, 9, 1, 8, 8, generator=g) > 0.3).float()
+    noisy = views + 0.1 * torch.randn(views.shape, generator=g)
+    loss, tau = multiview_rerender_loss(noisy, d, s, w)
+    # no other scales do better (the closed form is the least-squares optimum)
+    for delta in ((0.01, 0), (0, 0.01), (-0.01, 0), (0, -0.01)):
+        t = tau + torch.tensor(delta)
+        resid = noisy - t[:, 0].view(-1, 1, 1, 1, 1) * d - t[:, 1].view(-1, 1, 1, 1, 1) * s
+        assert float((w * resid.square()).sum() / (3 * w.sum())) > float(loss)
+    zero, _ = multiview_rerender_loss(views, d, torch.zeros_like(s))  # no specular part: still solvable
+    assert torch.isfinite(zero)
+
+
+def test_multiview_renders_match_the_point_light_renderer():
+    """With no environment light, view k's diffuse + specular re-render is torch_brdf's point-light
+    render from camera k with the flash there; the SG integral is 2π/λ (1 − e^{−2λ})."""
+    from ebr_mitsuba.geometry import DEFAULT_FLASH_INTENSITY
+    from ebr_mitsuba.nets import Maps
+    from ebr_mitsuba.nets import torch_brdf as tb
+    from ebr_mitsuba.nets.mair_lighting import PixelSGLighting, hemisphere_directions
+    from ebr_mitsuba.nets.mair_render import multiview_renders, sg_integral
+    from ebr_mitsuba.nets.mair_views import multiview_shots, view_direction_maps
+
+    g = torch.Generator().manual_seed(1)
+    b, h, w, s = 2, 8, 8, 3
+    n = torch.cat([0.3 * torch.randn(b, 2, h, w, generator=g), torch.ones(b, 1, h, w)], dim=1)
+    maps = Maps(
+        n / n.norm(dim=1, keepdim=True),
+        torch.rand(b, 3, h, w, generator=g),
+        torch.rand(b, 3, h, w, generator=g),
+        torch.rand(b, 1, h, w, generator=g),
+    )
+    axis = torch.tensor([0.0, 0.0, 1.0]).view(1, 1, 3, 1, 1).expand(b, s, 3, h, w)
+    dark = PixelSGLighting(
+        axis, torch.full((b, s, 1, h, w), 10.0), torch.ones(b, s, 1, h, w), torch.zeros(b, s, 3)
+    )
+    cams = torch.tensor([sh.camera for sh in multiview_shots()], dtype=torch.float32)
+    diffuse, specular = multiview_renders(
+        maps, dark, view_direction_maps(h, w), cams, DEFAULT_FLASH_INTENSITY
+    )
+    for k in (0, 4, 8):
+        ref = tb.render_point_light(maps, cams[k], DEFAULT_FLASH_INTENSITY, cams[k])
+        assert torch.allclose(diffuse[:, k] + specular[:, k], ref, rtol=1e-5, atol=1e-6), k
+    lam = torch.tensor([0.5, 3.0, 40.0])
+    dirs = hemisphere_directions(256, 512).double()  # upper hemisphere; the lobes sit on +z
+    cell = (torch.pi / 2 / 256) * (2 * torch.pi / 512) * torch.sin(torch.acos(dirs[:, 2]))
+    numeric = torch.stack([(torch.exp(lm * (dirs[:, 2] - 1.0)) * cell).sum() for lm in lam.double()])
+    lower = torch.tensor([float(2 * torch.pi / lm * (torch.exp(-lm) - torch.exp(-2 * lm))) for lm in lam])
+    assert torch.allclose(sg_integral(lam), (numeric + lower.double()).float(), rtol=1e-3)

@@ -8,7 +8,8 @@ module          contents
 ==============  ===================================================================================
 ``data``        the training data set in memory
 ``cache``       per-sample exemplar selections and extracted SGs on disk (stage 1, stage 2)
-``phases``      the training phases (lighting, diffuse, specular, refinement, finetune, dualloss)
+``phases``      the training phases (lighting, diffuse, specular, refinement, finetune, dualloss;
+                MAIR's normal, lighting, brdf)
 ``trainer``     the training loop: phases, losses, CSV log, progress, resume
 ``ddp``         data-parallel training under ``torchrun`` (gloo on CPU)
 ==============  ===================================================================================
