@@ -76,7 +76,7 @@ def _views(data: Path):
 
 def test_mair_checkpoint_loads_to_the_same_predictions(mair_run, tiny_mv, tmp_path):
     from ebr_mitsuba.model.bundle import build_bundle
-    from ebr_mitsuba.model.predict import load_model
+    from ebr_mitsuba.model.predict import as_predictor, load_model
 
     data = ck.load_checkpoint(mair_run / "model.pt", expect_kind="mair")
     assert set(data["model"]) == {"mair"} and data["step"]["phase"] == "brdf"
@@ -87,6 +87,8 @@ def test_mair_checkpoint_loads_to_the_same_predictions(mair_run, tiny_mv, tmp_pa
 
     bundle = load_model(mair_run / "model.pt", device="cpu", expect_kind="mair")
     assert bundle.kind == "mair" and bundle.resolution == 32
+    with pytest.raises(InputError, match=r"a 'mair' \(multi-view\) model: no flash / no-flash"):
+        as_predictor(bundle)  # ebr eval / estimate refuse it with one line
     # the same weights by hand: build from the stored config, load the state dict
     fresh = build_bundle(bundle.config, bundle.facts)
     fresh.load_state(data["model"], "model.pt")

@@ -417,7 +417,13 @@ def as_predictor(
 ) -> ModelPredictor | DualLossPredictor:
     """The predictor of a loaded model: a :class:`ModelPredictor` (``ebrenv``, with
     ``fixed_roughness``) or a :class:`DualLossPredictor` (``dualloss``, which has no exemplars:
-    ``fixed_roughness`` is refused)."""
+    ``fixed_roughness`` is refused). A ``mair`` model has no predictor of these protocols yet
+    (its multi-view estimate is issue 13's ``ebr estimate --views``): refused with one line."""
+    if bundle.kind == "mair":
+        raise InputError(
+            "a 'mair' (multi-view) model: no flash / no-flash or five-light prediction; run it on "
+            "the 9 views with bundle.mair (docs/mair.md, 'Training')"
+        )
     if bundle.kind == "dualloss":
         if fixed_roughness is not None:
             raise InputError("fixed_roughness applies to ebrenv models (a dualloss model has no exemplars)")
