@@ -26,7 +26,8 @@ from ebr_mitsuba.model.config import KINDS, MAIR_PHASES, PHASES, load_config, pa
 ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = ROOT / "configs"
 TRAIN_CONFIGS = sorted(p.name for p in CONFIGS.glob("*.toml") if not p.name.startswith("data_"))
-SLOW_CONFIGS = {"train_paper.toml", "dualloss.toml", "mair_paper.toml"}  # full-size networks: seconds per step on a CPU
+# full-size networks: seconds per step on a CPU
+SLOW_CONFIGS = {"train_paper.toml", "dualloss.toml", "mair_paper.toml"}
 FIXTURE_CONFIG = "train_tiny.toml"  # trained by the tiny_model fixture (checked there)
 NEAR_FAR_SMOKE = "train_tiny_near_far.toml"  # trained by tests/test_train_near_far.py
 MAIR_SMOKE = "mair_tiny.toml"  # trained by tests/test_train_mair.py

@@ -128,7 +128,9 @@ def test_mair_checkpoint_loads_to_the_same_predictions(mair_run, tiny_mv, tmp_pa
 
 def test_each_stage_loss_falls_on_a_fixed_batch(tiny_mv, tmp_path):
     """Seed 0, samples 0–3 as one batch: every stage's loss after DECREASE_STEPS Adam steps at
-    DECREASE_LR is at most DECREASE_RATIO of its first (measured: 0.17, 0.88, 0.71)."""
+    DECREASE_LR is at most DECREASE_RATIO of its first (measured: 0.18, 0.86, 0.70)."""
+    from ebr_mitsuba.train.phases import CLIP_LEVEL
+
     torch.manual_seed(0)
     trainer = _trainer(_doc(tiny_mv), tmp_path / "run")
     try:
@@ -148,6 +150,12 @@ def test_each_stage_loss_falls_on_a_fixed_batch(tiny_mv, tmp_path):
                 opt.step()
             final, _ = phase.loss(phase.top, idx, gen)
             assert float(final.detach()) <= DECREASE_RATIO * losses[0], (plan.name, losses)
+        # the re-render loss leaves out the saturated photo pixels (0.5 % of the tiny data's)
+        bt = phase.batch(idx)
+        d = trainer.data
+        camera = d.photos[:, list(phase.views.shots)] * d.exposure.view(-1, 1, 1, 1, 1)
+        saturated = (camera >= CLIP_LEVEL).any(dim=2, keepdim=True)
+        assert saturated.any() and torch.equal(bt.unclipped == 0, saturated)
     finally:
         trainer.close()
 

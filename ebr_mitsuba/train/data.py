@@ -14,6 +14,7 @@ field                   shape                 content
 ``maps``                (N, 10, H, W)         ground-truth maps (:data:`MAP_LAYOUT`)
 ``sg``, ``sg_mask``     (N, K, 7), (N, K)     ground-truth lobes (radiance units), padding mask
 ``gains``               (N, 3)                white balance (input units / radiance)
+``exposure``            (N,)                  the camera exposure the images were divided by
 ======================  ====================  ===============================================
 
 Exposure (``docs/conventions.md``, "Exposure"): every image is divided by its sample's recorded
@@ -56,6 +57,7 @@ class TrainingData:
     sg: torch.Tensor
     sg_mask: torch.Tensor
     gains: torch.Tensor
+    exposure: torch.Tensor | None = None
 
     def __len__(self) -> int:
         return int(self.maps.shape[0])
@@ -136,6 +138,7 @@ def load_training_data(root: str | Path, max_samples: int = 0, progress=None) ->
         stack("sg"),
         stack("sg_mask"),
         gains,
+        exposure,
     )
 
 

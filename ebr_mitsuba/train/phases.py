@@ -272,14 +272,20 @@ class MultiViewInputs:
 class MAIRBatch(NamedTuple):
     """One batch of a MAIR phase: ``views`` (B, N, 3, H, W) — the photos at the reference exposure
     (clamped at 0) times their in-frame weights, so the networks see what a rectified camera
-    capture shows —, ``directions`` (B, N, 3, H, W), ``weights`` (B, N, 1, H, W), the true maps
-    and the true incident radiance (B, 3D, H, W) at the g4 directions."""
+    capture shows —, ``directions`` (B, N, 3, H, W), ``weights`` (B, N, 1, H, W), the true maps,
+    the true incident radiance (B, 3D, H, W) at the g4 directions (lighting stage; else None) and
+    ``unclipped`` (B, N, 1, H, W): 0 where a channel of the photo saturated (camera value ≥
+    :data:`CLIP_LEVEL`), which the re-render loss leaves out."""
 
     views: torch.Tensor
     directions: torch.Tensor
     weights: torch.Tensor
     target: Maps
-    radiance: torch.Tensor
+    radiance: torch.Tensor | None
+    unclipped: torch.Tensor
+
+
+CLIP_LEVEL = 254.5 / 255.0  # a photo value (camera units) at or above this counts as saturated
 
 
 def incident_radiance(lobes: Sequence[torch.Tensor], directions: torch.Tensor) -> torch.Tensor:
@@ -308,7 +314,8 @@ class MAIRPhase(Phase):
       1), + g5 binary entropy of the visibility μ;
     * ``brdf``: g3 scale-invariant MSE of the diffuse map, g2 MSE of the specular and roughness
       maps, the multi-view re-render loss (:func:`~ebr_mitsuba.nets.mair_render.multiview_renders`
-      under the predicted lighting and each view's flash, least-squares τ_d, τ_s).
+      under the predicted lighting and each view's flash, least-squares τ_d, τ_s; saturated
+      photo pixels left out).
     """
 
     def __init__(self, plan: PhasePlan, inputs: PhaseInputs, mair: torch.nn.Module, views: MultiViewInputs):
@@ -320,6 +327,9 @@ class MAIRPhase(Phase):
         x, d, v = self.inputs, self.inputs.data, self.views
         photos = d.photos[idx][:, list(v.shots)].to(x.device).clamp_min(0.0)
         b = photos.shape[0]
+        exposure = torch.ones(b) if d.exposure is None else d.exposure[idx]
+        camera_units = photos * exposure.to(photos).view(b, 1, 1, 1, 1)
+        unclipped = (camera_units < CLIP_LEVEL).all(dim=2, keepdim=True).to(photos.dtype)
         weights = v.weights.expand(b, *v.weights.shape)
         directions = v.directions.expand(b, *v.directions.shape)
         radiance = None
@@ -327,7 +337,7 @@ class MAIRPhase(Phase):
             r = incident_radiance(d.lobes(idx), v.lighting_directions)  # (B, D, 3)
             h, w = photos.shape[-2:]
             radiance = r.reshape(b, -1, 1, 1).expand(b, r.shape[1] * 3, h, w)
-        return MAIRBatch(photos * weights, directions, weights, x.target(idx), radiance)
+        return MAIRBatch(photos * weights, directions, weights, x.target(idx), radiance, unclipped)
 
     def loss(self, model, idx, gen):
         c: MAIRLossConfig = self.inputs.loss
@@ -355,7 +365,7 @@ class MAIRPhase(Phase):
         diffuse_r, specular_r = multiview_renders(
             m, out.lighting, bt.directions, self.views.cameras, self.inputs.flash_intensity
         )
-        rr, _ = multiview_rerender_loss(bt.views, diffuse_r, specular_r, bt.weights)
+        rr, _ = multiview_rerender_loss(bt.views, diffuse_r, specular_r, bt.weights * bt.unclipped)
         loss = c.diffuse * g3 + c.specular * spec + c.roughness * rough + c.rerender * rr
         return loss, {"diffuse": g3, "specular": spec, "roughness": rough, "rerender": rr}
 
