@@ -42,7 +42,7 @@ import torch
 from .. import __version__
 from ..errors import InputError
 from ..fsutil import atomic_path
-from .config import EBRENV_TABLES
+from .config import DROPPED_TABLES
 
 CHECKPOINT_FORMAT = "ebr-checkpoint/1"
 KINDS = ("ebrenv", "dualloss", "mair")
@@ -88,10 +88,12 @@ def save_checkpoint(path: str | Path, payload: dict) -> Path:
 def upgrade_config(kind: str, config):
     """The stored ``config`` of a ``kind`` checkpoint as :meth:`TrainConfig.to_dict` writes it now:
     without the tables that apply to other kinds (older dualloss checkpoints carried
-    ``stages``, ``selection`` and ``extract``). Anything but a dict is returned unchanged."""
-    if kind != "dualloss" or not isinstance(config, dict):
+    ``stages``, ``selection`` and ``extract``; :data:`~.config.DROPPED_TABLES`). Anything but a
+    dict is returned unchanged."""
+    dropped = DROPPED_TABLES.get(kind, ())
+    if not dropped or not isinstance(config, dict):
         return config
-    return {k: v for k, v in config.items() if k not in EBRENV_TABLES}
+    return {k: v for k, v in config.items() if k not in dropped}
 
 
 def load_checkpoint(path: str | Path, expect_kind: str | None = None, map_location="cpu") -> dict:

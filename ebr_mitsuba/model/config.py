@@ -242,7 +242,7 @@ class TrainConfig:
             "selection": _plain(self.selection),
             "extract": _plain(self.extract),
         }
-        for name in EBRENV_TABLES if self.kind == "dualloss" else MAIR_DROPPED if self.kind == "mair" else ():
+        for name in DROPPED_TABLES[self.kind]:
             del out[name]
         return out
 
@@ -295,7 +295,8 @@ class TrainConfig:
 SELECT_PRESET = "training"  # the SELECT_PRESETS entry [selection] overrides
 EXTRACT_PRESET = "training"  # the EXTRACT_PRESETS entry [extract] overrides
 EBRENV_TABLES = ("stages", "selection", "extract")  # tables that apply to kind = "ebrenv" alone
-MAIR_DROPPED = ("selection", "extract")  # ebrenv tables a mair config has no use for
+# the tables a config of each kind does not have (parse_config refuses them, to_dict leaves them out)
+DROPPED_TABLES = {"ebrenv": (), "dualloss": EBRENV_TABLES, "mair": ("selection", "extract")}
 EBRENV_MODEL_KEYS = ("size", "capture", "use_exemplars", "use_cascade", "use_refinement", "log_eps")
 
 
@@ -378,6 +379,7 @@ def config_from_dict(data: dict) -> TrainConfig:
 
 __all__ = [
     "DataConfig",
+    "DROPPED_TABLES",
     "EBRENV_TABLES",
     "EXTRACT_PRESET",
     "KINDS",
