@@ -1,4 +1,4 @@
-"""Train the EBREnv networks or the dual-loss estimator from a TOML config.
+"""Train the EBREnv networks, the dual-loss estimator or the MAIR multi-view networks from a TOML config.
 
   ebr train CONFIG.toml [--out DIR] [--resume] [--export FILE] [--json]
 
