@@ -10,6 +10,10 @@ fixture       config                                  content
 ``tiny_mv``   ``configs/data_tiny_multiview.toml``    4 multi-view samples (3×3 views) at 32²
 ============  ======================================  ================================================
 
+``mair_tiny_run`` is ``configs/mair_tiny.toml`` trained on ``tiny_mv`` (the run directory, its
+``model.pt`` the tiny MAIR checkpoint of ``tests/test_train_mair.py`` and
+``tests/test_estimate_views.py``), equally shared and read-only.
+
 The data sets are shared by every test of the session: read them, never change them. A test that
 damages, extends or resumes a data set works on a copy (``shutil.copytree(tiny, tmp_path / ...)``).
 
@@ -107,3 +111,25 @@ def tiny5(tmp_path_factory) -> Path:
 def tiny_mv(tmp_path_factory) -> Path:
     """``configs/data_tiny_multiview.toml`` (module docstring: shared, read-only)."""
     return generate_tiny("data_tiny_multiview.toml", tmp_path_factory.mktemp("tiny_mv") / "data")
+
+
+@pytest.fixture(scope="session")
+def mair_tiny_run(tiny_mv, tmp_path_factory) -> Path:
+    """``configs/mair_tiny.toml`` trained on ``tiny_mv`` (torch on one thread: bit-exact): the run
+    directory (module docstring: shared, read-only)."""
+    import tomllib
+    import torch
+
+    from ebr_mitsuba.model.config import parse_config
+    from ebr_mitsuba.train.trainer import Trainer
+
+    doc = tomllib.loads((CONFIGS / "mair_tiny.toml").read_text())
+    doc["data"] = {"train": str(tiny_mv)}
+    out = tmp_path_factory.mktemp("mair") / "run"
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        Trainer(parse_config(doc, "mair_tiny.toml"), out).run()
+    finally:
+        torch.set_num_threads(previous)
+    return out

@@ -47,10 +47,11 @@ def _trainer(doc: dict, out: Path, resume: bool = False):
 
 
 @pytest.fixture(scope="module")
-def mair_run(tiny_mv, tmp_path_factory) -> Path:
-    """configs/mair_tiny.toml trained on the tiny multi-view data: the run directory."""
-    out = tmp_path_factory.mktemp("mair") / "run"
-    summary = _trainer(_doc(tiny_mv), out).run()
+def mair_run(mair_tiny_run) -> Path:
+    """configs/mair_tiny.toml trained on the tiny multi-view data (conftest's ``mair_tiny_run``):
+    the run directory, its summary and log checked."""
+    out = mair_tiny_run
+    summary = json.loads((out / "summary.json").read_text())
     assert list(summary["phases"]) == list(MAIR_PHASES)
     for phase, info in summary["phases"].items():
         assert info["steps"] == 2 and np.isfinite(info["final_loss"]), phase
@@ -75,8 +76,10 @@ def _views(data: Path):
 
 
 def test_mair_checkpoint_loads_to_the_same_predictions(mair_run, tiny_mv, tmp_path):
+    from ebr_mitsuba.evaluation.evaluate import model_predictor
     from ebr_mitsuba.model.bundle import build_bundle
-    from ebr_mitsuba.model.predict import as_predictor, load_model
+    from ebr_mitsuba.model.predict import MAIRPredictor, as_predictor, load_model
+    from ebr_mitsuba.model.predictor import ViewsPredictor
 
     data = ck.load_checkpoint(mair_run / "model.pt", expect_kind="mair")
     assert set(data["model"]) == {"mair"} and data["step"]["phase"] == "brdf"
@@ -87,8 +90,11 @@ def test_mair_checkpoint_loads_to_the_same_predictions(mair_run, tiny_mv, tmp_pa
 
     bundle = load_model(mair_run / "model.pt", device="cpu", expect_kind="mair")
     assert bundle.kind == "mair" and bundle.resolution == 32
-    with pytest.raises(InputError, match=r"a 'mair' \(multi-view\) model: no flash / no-flash"):
-        as_predictor(bundle)  # ebr eval / estimate refuse it with one line
+    predictor = as_predictor(bundle)  # ebr estimate --views' predictor
+    assert isinstance(predictor, MAIRPredictor) and isinstance(predictor, ViewsPredictor)
+    assert predictor.grid == 32 and predictor.views == 9
+    with pytest.raises(InputError, match=r"a 'mair' \(multi-view\) model: ebr eval scores"):
+        model_predictor(predictor)  # ebr eval refuses it with one line
     # the same weights by hand: build from the stored config, load the state dict
     fresh = build_bundle(bundle.config, bundle.facts)
     fresh.load_state(data["model"], "model.pt")
@@ -100,6 +106,13 @@ def test_mair_checkpoint_loads_to_the_same_predictions(mair_run, tiny_mv, tmp_pa
         assert torch.equal(getattr(a.maps, name), getattr(b.maps, name)), name
     assert torch.equal(a.lighting.axis, b.lighting.axis)
     assert torch.isfinite(a.maps.stack()).all()
+    # the predictor runs the same network on (N, G, G, 3) views and (N, G, G) weights (a batch of
+    # one: the same up to float rounding)
+    pred = predictor.predict_views(views[0].permute(0, 2, 3, 1).numpy(), weights[:, 0].numpy())
+    diffuse = a.maps.diffuse[0].permute(1, 2, 0).numpy().clip(0, 1)
+    assert np.allclose(pred.maps.diffuse, diffuse, atol=1e-5)
+    assert np.allclose(pred.lighting.axis, a.lighting.axis[0].permute(0, 2, 3, 1).numpy(), atol=1e-5)
+    assert pred.lighting.amplitude.shape == (3, 32, 32, 3)
 
     # ebr train --resume on the finished run rewrites model.pt; --export writes the shipped form
     run = tmp_path / "run"

@@ -19,7 +19,7 @@ import torch
 
 from .. import metrics
 from ..errors import InputError
-from ..model.predictor import LightsPredictor, Predictor
+from ..model.predictor import LightsPredictor, Predictor, ViewsPredictor
 from ..svbrdf import SVBRDF
 
 
@@ -40,6 +40,11 @@ def model_predictor(predictor: Predictor | LightsPredictor) -> Callable[[dict, l
     back to the data set's resolution (the estimate a grid-sized model makes of that capture)."""
     if isinstance(predictor, LightsPredictor):
         return _lights_predictor(predictor)
+    if isinstance(predictor, ViewsPredictor):
+        raise InputError(
+            "a 'mair' (multi-view) model: ebr eval scores flash / no-flash and five-light models; "
+            "estimate a multi-view capture with 'ebr estimate --views DIR --checkpoint C' (docs/mair.md)"
+        )
 
     def run(item: dict, names: list[str]) -> SVBRDF:
         photos = item["photos"] / float(item["exposure"])  # the reference exposure, as in training

@@ -4,7 +4,8 @@
 :class:`~.bundle.ModelBundle`; :func:`load_predictor` wraps it as a :class:`ModelPredictor`, the
 :class:`~.predictor.Predictor` that ``ebr estimate``, ``ebr eval``, the benches and the trainer's
 cache take (a ``dualloss`` model: a :class:`DualLossPredictor`, the
-:class:`~.predictor.LightsPredictor` of ``ebr eval`` and the five-light bench). :func:`predict`
+:class:`~.predictor.LightsPredictor` of ``ebr eval`` and the five-light bench; a ``mair`` model: a
+:class:`MAIRPredictor`, the :class:`~.predictor.ViewsPredictor` of ``ebr estimate --views``). :func:`predict`
 runs, on numpy (H, W, 3) linear float32 images at the model grid (``bundle.resolution``):
 
 ==============  ==========================================================================
@@ -44,7 +45,7 @@ from ..sgenv import SGEnvironment
 from .bundle import ModelBundle, bundle_from_checkpoint
 from .checkpoint import load_checkpoint
 from .device import pick_device
-from .predictor import Lighting, PassInputs, Prediction
+from .predictor import Lighting, PassInputs, PixelLighting, Prediction, ViewsPrediction
 
 SHIPPED_MODEL = "ebrenv_small.pt"
 FALLBACK_ROUGHNESS = 0.5
@@ -384,6 +385,78 @@ class ModelPredictor:
         return cascade_pass(self.bundle, inputs, env, **options)
 
 
+class MAIRPredictor:
+    """A loaded ``mair`` model as a :class:`~.predictor.ViewsPredictor`: maps and per-pixel SG
+    lighting from the N views of the 3×3 capture, each resampled onto the (G, G) sample grid
+    (``ebr_mitsuba.estimate.rectify``), as the MAIR phase of ``ebr train`` feeds them: each view at
+    the reference exposure, clamped at 0 and times its in-frame weight, with the per-pixel view
+    directions to its camera (:func:`ebr_mitsuba.nets.mair_views.view_direction_maps`).
+
+    ``grid``: ``bundle.resolution``; ``views``: 9. The networks are fully convolutional: views of
+    another square size run too (at the scale the model was not trained at)."""
+
+    def __init__(self, bundle: ModelBundle):
+        if bundle.kind != "mair":
+            raise InputError(
+                f"MAIRPredictor: a '{bundle.kind}' model; the multi-view estimate needs a 'mair' one"
+            )
+        self.bundle = bundle
+
+    @property
+    def grid(self) -> int:
+        return int(self.bundle.resolution)
+
+    @property
+    def views(self) -> int:
+        return 9
+
+    @torch.no_grad()
+    def predict_views(self, views, weights=None, cameras=None) -> ViewsPrediction:
+        """Maps (G, G) and :class:`~.predictor.PixelLighting` from (N, G, G, 3) views (see
+        :meth:`~.predictor.ViewsPredictor.predict_views`)."""
+        from ..geometry import Shot
+        from ..nets.mair_views import multiview_shots, view_direction_maps
+
+        t0 = time.perf_counter()
+        v = np.asarray(views, dtype=np.float32)
+        if v.ndim != 4 or v.shape[-1] != 3 or v.shape[1] != v.shape[2]:
+            raise InputError(f"predict_views: views have shape {v.shape}; expected (N, G, G, 3)")
+        if not np.all(np.isfinite(v)):
+            raise InputError("predict_views: the views contain NaN or Inf values")
+        n, h, w = v.shape[:3]
+        if cameras is None:
+            shots = multiview_shots()
+            if n != len(shots):
+                raise InputError(f"predict_views: {n} views and no cameras; give the {n} camera positions")
+        else:
+            if len(cameras) != n:
+                raise InputError(f"predict_views: {n} views but {len(cameras)} cameras; give one per view")
+            shots = [
+                Shot(f"view{k}", tuple(float(c) for c in cam), 45.0, None) for k, cam in enumerate(cameras)
+            ]
+        wt = np.ones((n, h, w), np.float32) if weights is None else np.asarray(weights, np.float32)
+        if wt.shape != (n, h, w):
+            raise InputError(f"predict_views: weights have shape {wt.shape}; expected {(n, h, w)}")
+        dev = self.bundle.device
+        x = torch.from_numpy(np.maximum(v, 0.0) * wt[..., None]).permute(0, 3, 1, 2)[None].to(dev)
+        wts = torch.from_numpy(np.ascontiguousarray(wt))[:, None][None].to(dev)
+        dirs = view_direction_maps(h, w, shots).to(dev)
+        out = self.bundle.mair(x, dirs, wts)
+        maps = out.maps.to_svbrdf(0, source="ebr estimate --views (MAIR network)")
+        lt = out.lighting
+
+        def np_(t, perm):
+            return t[0].detach().to("cpu", torch.float32).permute(*perm).numpy().copy()
+
+        lighting = PixelLighting(
+            np_(lt.axis, (0, 2, 3, 1)),
+            np_(lt.sharpness[:, :, 0], (0, 1, 2)),
+            np_(lt.visibility[:, :, 0], (0, 1, 2)),
+            lt.intensity[0].detach().to("cpu", torch.float32).numpy().copy(),
+        )
+        return ViewsPrediction(maps, lighting, {"network": time.perf_counter() - t0})
+
+
 class DualLossPredictor:
     """A loaded ``dualloss`` model as a :class:`~.predictor.LightsPredictor`: maps from N photos
     (one per point light, in the model's light order) at the model grid.
@@ -414,20 +487,17 @@ class DualLossPredictor:
 
 def as_predictor(
     bundle: ModelBundle, fixed_roughness: float | None = None
-) -> ModelPredictor | DualLossPredictor:
+) -> ModelPredictor | DualLossPredictor | MAIRPredictor:
     """The predictor of a loaded model: a :class:`ModelPredictor` (``ebrenv``, with
-    ``fixed_roughness``) or a :class:`DualLossPredictor` (``dualloss``, which has no exemplars:
-    ``fixed_roughness`` is refused). A ``mair`` model has no predictor of these protocols yet
-    (its multi-view estimate is issue 13's ``ebr estimate --views``): refused with one line."""
-    if bundle.kind == "mair":
-        raise InputError(
-            "a 'mair' (multi-view) model: no flash / no-flash or five-light prediction; run it on "
-            "the 9 views with bundle.mair (docs/mair.md, 'Training')"
-        )
-    if bundle.kind == "dualloss":
+    ``fixed_roughness``), a :class:`DualLossPredictor` (``dualloss``) or a :class:`MAIRPredictor`
+    (``mair``, the multi-view model of ``ebr estimate --views``); the last two have no exemplars,
+    so ``fixed_roughness`` is refused for them."""
+    if bundle.kind in ("dualloss", "mair"):
         if fixed_roughness is not None:
-            raise InputError("fixed_roughness applies to ebrenv models (a dualloss model has no exemplars)")
-        return DualLossPredictor(bundle)
+            raise InputError(
+                f"fixed_roughness applies to ebrenv models (a {bundle.kind} model has no exemplars)"
+            )
+        return DualLossPredictor(bundle) if bundle.kind == "dualloss" else MAIRPredictor(bundle)
     return ModelPredictor(bundle, fixed_roughness)
 
 
@@ -436,15 +506,17 @@ def load_predictor(
     device: str = "auto",
     expect_kind: str | None = "ebrenv",
     fixed_roughness: float | None = None,
-) -> ModelPredictor | DualLossPredictor:
+) -> ModelPredictor | DualLossPredictor | MAIRPredictor:
     """:func:`load_model` (None: the shipped model; ``expect_kind`` as there) as its predictor
     (:func:`as_predictor`): a :class:`ModelPredictor` for an ``ebrenv`` model, a
-    :class:`DualLossPredictor` for a ``dualloss`` one."""
+    :class:`DualLossPredictor` for a ``dualloss`` one, a :class:`MAIRPredictor` for a ``mair``
+    one (no MAIR model is shipped: give its ``path``)."""
     return as_predictor(load_model(path, device, expect_kind), fixed_roughness)
 
 
 __all__ = [
     "DualLossPredictor",
+    "MAIRPredictor",
     "ModelPredictor",
     "as_predictor",
     "cascade_pass",

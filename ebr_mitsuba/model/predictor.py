@@ -3,7 +3,8 @@
 ``ebr estimate`` (:func:`ebr_mitsuba.estimate.pipeline.run_estimate`), ``ebr eval``, the benches
 and the trainer's stage-2 cache take a predictor as an argument; :class:`.predict.ModelPredictor`
 (a loaded model, :func:`.predict.load_predictor`) implements the first two protocols, a dual-loss model's
-:class:`.predict.DualLossPredictor` the :class:`LightsPredictor`, and tests pass small fakes.
+:class:`.predict.DualLossPredictor` the :class:`LightsPredictor`, a MAIR model's
+:class:`.predict.MAIRPredictor` the :class:`ViewsPredictor`, and tests pass small fakes.
 
 =======================  ===============================================================================
 protocol                 surface
@@ -22,9 +23,14 @@ protocol                 surface
                          ``predict_lights(photos) -> Prediction`` on N (G, G, 3) photos, one per
                          point light (``env`` None); what ``ebr eval`` and the five-light bench take
                          for a ``dualloss`` model (:class:`.predict.DualLossPredictor`)
+:class:`ViewsPredictor`  a multi-view (MAIR) model: ``grid``, ``views`` (N = 9) and
+                         ``predict_views(views, weights, cameras) -> ViewsPrediction`` on N views
+                         resampled onto the (G, G) sample grid; what ``ebr estimate --views`` takes
+                         (:class:`.predict.MAIRPredictor`)
 =======================  ===============================================================================
 
-The result types (:class:`Prediction`, :class:`Lighting`, :class:`PassInputs`) are plain numpy
+The result types (:class:`Prediction`, :class:`Lighting`, :class:`PassInputs`,
+:class:`PixelLighting`, :class:`ViewsPrediction`) are plain numpy
 dataclasses; this module imports neither torch nor Mitsuba.
 """
 
@@ -202,4 +208,100 @@ class LightsPredictor(Protocol):
         ...
 
 
-__all__ = ["Lighting", "LightsPredictor", "PassInputs", "Prediction", "Predictor", "StagedPredictor"]
+@dataclass
+class PixelLighting:
+    """Per-pixel SG incident lighting (MAIR's S_D lobes per pixel; ``docs/mair.md``), numpy.
+
+    At pixel (i, j) the radiance from direction ω is ``Σ_s amplitude[s, i, j] · exp(sharpness[s, i, j]
+    (axis[s, i, j]·ω − 1))``: ``axis`` (S, H, W, 3) unit, world frame; ``sharpness`` (S, H, W);
+    ``visibility`` (S, H, W) μ ∈ [0, 1]; ``intensity`` (S, 3) η; ``amplitude`` = μ η (S, H, W, 3).
+    """
+
+    axis: np.ndarray
+    sharpness: np.ndarray
+    visibility: np.ndarray
+    intensity: np.ndarray
+
+    @property
+    def num_sgs(self) -> int:
+        return int(self.axis.shape[0])
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return int(self.axis.shape[1]), int(self.axis.shape[2])
+
+    @property
+    def amplitude(self) -> np.ndarray:
+        return (self.visibility[..., None] * self.intensity[:, None, None, :]).astype(np.float32)
+
+    def scaled(self, factor: float) -> PixelLighting:
+        """The same lobes with ``η`` times ``factor``."""
+        return PixelLighting(self.axis, self.sharpness, self.visibility, self.intensity * np.float32(factor))
+
+    def pixel_environment(self, row: int | None = None, col: int | None = None) -> SGEnvironment:
+        """The S lobes at one pixel (default: the centre) as an :class:`SGEnvironment`."""
+        h, w = self.shape
+        row = h // 2 if row is None else row
+        col = w // 2 if col is None else col
+        amp = np.maximum(self.amplitude[:, row, col].astype(np.float64), 0.0)
+        sharp = np.maximum(self.sharpness[:, row, col].astype(np.float64), 1e-6)
+        return SGEnvironment(self.axis[:, row, col].astype(np.float64), sharp, amp)
+
+    def radiance(self, directions: np.ndarray) -> np.ndarray:
+        """Incident radiance at every pixel from D unit ``directions`` (D, 3): (D, H, W, 3)."""
+        d = np.asarray(directions, np.float64).reshape(-1, 3)
+        cos = np.einsum("dc,shwc->dshw", d, self.axis.astype(np.float64))
+        lobes = np.exp(self.sharpness[None].astype(np.float64) * (cos - 1.0))
+        return np.einsum("dshw,shwc->dhwc", lobes, self.amplitude.astype(np.float64)).astype(np.float32)
+
+
+@dataclass
+class ViewsPrediction:
+    """What :meth:`ViewsPredictor.predict_views` returns: ``maps`` (SVBRDF at the grid),
+    ``lighting`` (:class:`PixelLighting` at the grid, in the views' units up to the scale the
+    network cannot know), ``timings`` (seconds per stage)."""
+
+    maps: SVBRDF
+    lighting: PixelLighting
+    timings: dict = field(default_factory=dict)
+
+
+@runtime_checkable
+class ViewsPredictor(Protocol):
+    """N views of the planar sample, each resampled onto the (G, G) sample grid, in; maps and
+    per-pixel SG lighting out (module docstring). ``isinstance(p, ViewsPredictor)`` tells it from
+    the other predictors."""
+
+    @property
+    def grid(self) -> int:
+        """The model grid G: ``predict_views`` takes (N, G, G, 3) views."""
+        ...
+
+    @property
+    def views(self) -> int:
+        """N: how many views the model was trained with (9, the 3×3 grid)."""
+        ...
+
+    def predict_views(
+        self,
+        views: np.ndarray,
+        weights: np.ndarray | None = None,
+        cameras: Sequence[Sequence[float]] | None = None,
+    ) -> ViewsPrediction:
+        """Maps and lighting from N (G, G, 3) linear float32 views at the reference exposure
+        (``views``: (N, G, G, 3)), their in-frame weights (N, G, G) (None: every pixel seen) and
+        camera positions (N × 3; None: those of ``ebr capture --setup multi-view``)."""
+        ...
+
+
+__all__ = [
+    "Lighting",
+    "LightsPredictor",
+    "PassInputs",
+    "PixelLighting",
+    "Prediction",
+    "Predictor",
+    "StagedPredictor",
+    "ViewsPrediction",
+    "ViewsPredictor",
+]
