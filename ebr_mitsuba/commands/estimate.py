@@ -5,6 +5,7 @@ or SVBRDF maps from five photos lit by five known point lights.
                [--checkpoint C] [--refine-steps N] [--refine-lobes] [--json] [options]
   ebr estimate --lights L0 L1 L2 L3 L4 --out DIR [--checkpoint C] [--json]
   ebr estimate --lights CAPTURE_DIR --out DIR [--checkpoint C] [--json]
+  ebr estimate --views CAPTURE_DIR --out DIR --checkpoint C [--json]
 
 Inputs: EXR (linear) or PNG/JPEG (sRGB, 8/16 bit), all of one size, the sample filling the frame
 (see docs/capture-guide.md). Without --noflash the capture is flash-only (a dark room): no
@@ -25,10 +26,22 @@ than five, photos of different sizes, a missing light position, an unreadable fi
 options below only the common ones apply (--checkpoint, --flash-intensity as each light's
 intensity, --saturation-level, --max-size, --json); the others are refused.
 
+Multi-view (--views): the directory of `ebr capture --setup multi-view` (the 3x3 grid of cameras
+each with its flash: view{a}{b}_flash for row a, column b, and its capture.json with every view's
+file, camera, field of view and flash; docs/mair.md, "Estimating"), estimated by a MAIR model
+(`ebr train` with kind = "mair"; none is shipped: --checkpoint is required, train one with
+`ebr train configs/mair_small.toml`). Each view is rectified onto the sample grid; DIR receives
+maps/, lighting/ (the per-pixel SG lobes as EXR, irradiance and hemisphere pictures), env.json
+(the centre pixel's lobes) with its pictures, inputs/ (rectified), weights/ (in frame),
+rerender/ and residual/ per view, novel/, estimate.json and report.html. Exit 2 for a missing
+view or capture.json, another count than 9, views of different sizes, a checkpoint of another
+kind, --views with --flash or --lights. Of the options below only the common ones apply.
+
 The options, their defaults (in brackets) and ranges are generated from the fields of
 EstimateConfig (ebr_mitsuba.estimate.pipeline), RefineConfig (ebr_mitsuba.estimate.refine: the
---refine-* flags and --render-mode) and FiveLightConfig (ebr_mitsuba.estimate.fivelight:
---lights), listed below by the mode they apply to; docs/config.md has their tables.
+--refine-* flags and --render-mode), FiveLightConfig (ebr_mitsuba.estimate.fivelight: --lights)
+and MultiViewConfig (ebr_mitsuba.estimate.multiview: --views), listed below by the mode they apply
+to; docs/config.md has their tables.
 
 Sizes: the lighting is estimated once at the model's grid (64x64 for the shipped model); the maps
 at the photos' resolution up to --max-size. Photos smaller than 32 pixels on the shorter side are
@@ -46,13 +59,14 @@ from pathlib import Path
 
 from ..errors import InputError
 from ..estimate.fivelight import FIVELIGHT_FLAGS, FiveLightConfig
+from ..estimate.multiview import MULTIVIEW_FLAGS, MultiViewConfig
 from ..estimate.pipeline import ESTIMATE_FLAGS, EstimateConfig
 from ..estimate.refine import REFINE_FLAGS, RefineConfig
 from ..typedconfig import add_flags, flag_dest, flag_name, flag_value, from_args
 from ._common import emit_json, progress, say
 
 NAME = "estimate"
-HELP = "estimate SVBRDF maps and lighting from flash/no-flash photos"
+HELP = "estimate SVBRDF maps and lighting from flash/no-flash photos, five lights or 3x3 views"
 
 # The flags, their defaults and help come from the configs' field metadata (typedconfig.add_flags);
 # a FiveLightConfig field whose flag is an EstimateConfig field's flag shares that option.
@@ -64,6 +78,20 @@ LIGHTS_ONLY_FLAGS = tuple(n for n in FIVELIGHT_FLAGS if flag_name(FiveLightConfi
 NOT_FOR_LIGHTS = (  # (config, field): refused with --lights
     *((EstimateConfig, n) for n in PAIR_FLAGS),
     *((RefineConfig, n) for n in REFINE_FLAGS),
+)
+_SHARED_FLAG_NAMES = _PAIR_FLAG_NAMES | _LIGHT_FLAG_NAMES
+VIEWS_ONLY_FLAGS = tuple(
+    n for n in MULTIVIEW_FLAGS if flag_name(MultiViewConfig, n) not in _SHARED_FLAG_NAMES
+)
+_VIEW_FLAG_NAMES = {flag_name(MultiViewConfig, n) for n in MULTIVIEW_FLAGS}
+NOT_FOR_VIEWS = (  # (config, field): refused with --views
+    *((EstimateConfig, n) for n in ESTIMATE_FLAGS if flag_name(EstimateConfig, n) not in _VIEW_FLAG_NAMES),
+    *((RefineConfig, n) for n in REFINE_FLAGS),
+    *(
+        (FiveLightConfig, n)
+        for n in FIVELIGHT_FLAGS
+        if flag_name(FiveLightConfig, n) not in _VIEW_FLAG_NAMES | _PAIR_FLAG_NAMES
+    ),
 )
 
 
@@ -78,6 +106,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     lights = parser.add_argument_group("five known lights (FiveLightConfig; with the options above)")
     add_flags(lights, FiveLightConfig, LIGHTS_ONLY_FLAGS)
+    views = parser.add_argument_group("3x3 views, MAIR (MultiViewConfig; with the options above)")
+    add_flags(views, MultiViewConfig, VIEWS_ONLY_FLAGS)
 
 
 def add_refine_arguments(parser) -> None:
@@ -153,6 +183,44 @@ def check_light_flags(args) -> FiveLightConfig:
     return cfg
 
 
+def multiview_config(args) -> MultiViewConfig:
+    """The :class:`~ebr_mitsuba.estimate.multiview.MultiViewConfig` of the parsed flags."""
+    return from_args(MultiViewConfig, args, MULTIVIEW_FLAGS)
+
+
+def check_view_flags(args) -> MultiViewConfig:
+    """``--views``: the options of the other estimates refused (--flash, --lights and theirs), the
+    others checked; the :class:`~ebr_mitsuba.estimate.multiview.MultiViewConfig`."""
+    if args.lights is not None:
+        raise InputError("--views and --lights are two captures; give one of them")
+    if args.flash is not None:
+        raise InputError("--views and --flash are two captures; give one of them")
+    for cls, name in NOT_FOR_VIEWS:
+        flag = _changed_flag(cls, args, name)
+        if flag is not None:
+            raise InputError(f"{flag} does not apply to --views (the 3x3 multi-view capture); drop it")
+    cfg = multiview_config(args)
+    out, views = Path(cfg.out).resolve(), Path(cfg.views).resolve()
+    if out == views or out in views.parents or views in out.parents:
+        raise InputError(f"--out {cfg.out} and --views {cfg.views} overlap; choose another --out")
+    return cfg
+
+
+def run_views(args) -> int:
+    """``ebr estimate --views``: :func:`ebr_mitsuba.estimate.multiview.run_multiview`."""
+    from ..estimate.multiview import run_multiview
+    from ..fsutil import output_lock
+
+    cfg = check_view_flags(args)
+    with output_lock(cfg.out, "ebr estimate"):  # one writer per --out: a second one is refused
+        summary = run_multiview(cfg, log=say, bar=progress)
+    if args.json:
+        emit_json(summary)
+    else:
+        print_summary(summary)
+    return 0
+
+
 def run_lights(args) -> int:
     """``ebr estimate --lights``: :func:`ebr_mitsuba.estimate.fivelight.run_fivelight`."""
     from ..estimate.fivelight import run_fivelight
@@ -172,10 +240,15 @@ def run(args) -> int:
     from ..estimate.pipeline import run_estimate
     from ..fsutil import output_lock
 
+    if args.views is not None:
+        return run_views(args)
     if args.lights is not None:
         return run_lights(args)
     if args.flash is None:
-        raise InputError("give --flash F (a flash/no-flash capture) or --lights L0 … L4 (five known lights)")
+        raise InputError(
+            "give --flash F (a flash/no-flash capture), --lights L0 … L4 (five known lights) or "
+            "--views DIR (the 3x3 multi-view capture)"
+        )
     cfg = estimate_config(args)
     check_flags(cfg)
     with output_lock(cfg.out, "ebr estimate"):  # one writer per --out: a second one is refused
@@ -201,7 +274,10 @@ def print_summary(summary: dict) -> None:
         if summary["refine"].get("note"):  # the loss rose: the best iterate was kept
             line += f"; {summary['refine']['note']}"
     say(line)
-    lighting = "five known lights" if summary["capture"] == "five-light" else f"{summary['lobes']} SG lobes"
+    lighting = {
+        "five-light": "five known lights",
+        "multi-view": f"{summary['lobes']} SG lobes per pixel",
+    }.get(summary["capture"], f"{summary['lobes']} SG lobes")
     say(
         f"wrote {summary['out']} ({summary['resolution']}x{summary['resolution']}, {lighting}, "
         f"{summary['total_seconds']:.1f} s); report: {Path(summary['out']) / 'report.html'}"

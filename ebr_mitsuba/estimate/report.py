@@ -1,7 +1,8 @@
 """``report.html``: one self-contained page (every picture embedded as a base64 PNG) per estimate.
 
 Sections: summary and input checks (warnings), the inputs, the maps (and the network's maps
-before refinement), the lighting (hemisphere and lat-long pictures of the SGs, exemplars), the
+before refinement), the lighting (hemisphere and lat-long pictures of the SGs, exemplars; for a
+multi-view estimate the per-pixel SGs and the views' in-frame weights), the
 re-renders beside the photos and the residuals with their errors, the refinement (errors before
 and after, loss curve), renders under novel lights, the per-map errors against ground truth when
 known (``ebr demo``), and the time per stage. It reads the PNGs the pipeline wrote into the
@@ -163,7 +164,12 @@ def render_report(out: Path, summary: dict) -> str:
         f"</title><style>{_CSS}</style></head><body>",
         f"<h1>ebr estimate — {html.escape(summary['capture'])} capture</h1>",
     ]
-    if "lights" in inp:  # five-light: each photo with its light's position
+    if "views" in inp:  # multi-view: each view with its camera
+        shot_rows = [
+            [f"{k} (camera at {', '.join(f'{c:g}' for c in inp['views'][k]['camera'])})", p]
+            for k, p in inp["paths"].items()
+        ]
+    elif "lights" in inp:  # five-light: each photo with its light's position
         shot_rows = [
             [f"{k} (light at {', '.join(f'{c:g}' for c in inp['lights'][k])})", p]
             for k, p in inp["paths"].items()
@@ -203,6 +209,15 @@ def render_report(out: Path, summary: dict) -> str:
                 ],
                 *(
                     [
+                        ["SG lobes per pixel", summary["lobes"]],
+                        [
+                            "renderer",
+                            "torch BRDF (nets/mair_render.py): each view's flash + the per-pixel SGs "
+                            f"(lighting scale {summary['lighting']['scale']:.4g}, fitted)",
+                        ],
+                    ]
+                    if "views" in inp
+                    else [
                         ["SG lobes", summary["lobes"]],
                         ["renderer", f"fast Dr.Jit renderer, environment term '{summary['render_mode']}'"],
                     ]
@@ -242,6 +257,12 @@ def render_report(out: Path, summary: dict) -> str:
     shots = list(summary["rerender_error"]["network"].keys())
     shots = [s for s in shots if s != "mean"]
     parts.append("<h2>Inputs</h2>" + "".join(_img(out, f"inputs/{s}.png", s) for s in shots))
+    if "views" in inp:
+        parts.append(
+            "<p>The views rectified onto the sample grid (above) and their in-frame weights (white: "
+            "the camera saw the point):</p>"
+            + "".join(_img(out, f"weights/{s}.png", f"{s}: in frame") for s in shots)
+        )
 
     parts.append("<h2>Maps</h2>")
     parts.append("".join(_img(out, f"maps/{m}.png", m) for m in MAP_NAMES))
@@ -252,6 +273,17 @@ def render_report(out: Path, summary: dict) -> str:
     parts.append("<h2>Lighting</h2>")
     if summary["capture"] == "flash-only":
         parts.append("<p>Flash-only capture: no environment estimated.</p>")
+    elif "views" in inp:
+        parts.append(
+            f"<p>{summary['lobes']} spherical Gaussians per pixel (lighting/lobes.exr, "
+            "lighting/lighting.json): the incident lighting of 4 × 4 pixels (each hemisphere seen from "
+            "above, +x right, +y up, laid out as in the image), the irradiance they give the plane, and "
+            "the centre pixel's lobes (env.json).</p>"
+            + _img(out, "lighting/hemispheres.png", "per-pixel lighting, 4 × 4 pixels", wide=True)
+            + _img(out, "lighting/irradiance.png", "irradiance from the SGs")
+            + _img(out, "env_sphere.png", "centre pixel: upper hemisphere seen from above")
+            + _img(out, "env_latlong.png", "centre pixel: lat-long, z up", wide=True)
+        )
     elif "lights" in inp:
         parts.append(
             f"<p>Five point lights at known positions ({html.escape(str(inp.get('geometry')))}), "

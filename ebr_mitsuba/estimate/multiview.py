@@ -1,0 +1,756 @@
+"""The multi-view estimate (``ebr estimate --views DIR``): the 9 views of the 3×3 capture in;
+SVBRDF maps, per-pixel SG lighting, re-renders of every view and a report out.
+
+The network is the MAIR model (:class:`ebr_mitsuba.nets.MAIRModel`, ``docs/mair.md``: a
+checkpoint of ``ebr train`` with ``kind = "mair"``, run through the model's
+:class:`~ebr_mitsuba.model.predict.MAIRPredictor`). No MAIR model is shipped: ``--checkpoint`` is
+required (without it: exit 2 with one line saying how to train one). :func:`run_multiview` writes
+the same kind of output directory as the other estimates
+(:func:`ebr_mitsuba.estimate.pipeline.run_estimate`, :func:`.fivelight.run_fivelight`), with the
+same writers (:mod:`.outputs`, :mod:`.report`) and the same atomic directory: complete or not at
+all, an earlier estimate directory replaced, anything else refused.
+
+**Inputs.** ``DIR`` is the directory of ``ebr capture --setup multi-view``: its ``capture.json``
+(``"format": "ebr-capture/1"``, ``"setup": "multi-view"``) lists the 9 shots, each with
+
+=======================  ==========================================================================
+key                      meaning
+=======================  ==========================================================================
+``name``                 ``view{a}{b}_flash``: row a (0: the cameras at y = +0.6, 1: y = 0, 2:
+                         y = −0.6) and column b (0: x = −0.6, 1: x = 0, 2: x = +0.6) of the grid
+``file``                 the image in ``DIR`` (``view{a}{b}_flash.exr`` as written by the capture;
+                         PNG and JPEG are read as sRGB)
+``camera``, ``target``,  the pinhole camera: position, the point it looks at, its up vector
+``up``
+``fov``                  horizontal field of view in degrees (``fov_axis`` "x")
+``flash``,               the view's flash (a point light, at the camera in the 3×3 setup) and its
+``flash_intensity``      intensity in W/sr at the image's exposure (absent: fitted)
+=======================  ==========================================================================
+
+A photographed set can be estimated by writing such a ``capture.json`` by hand beside its nine
+images. Refused with one line (exit 2) and nothing written: no or an unreadable ``capture.json``,
+one of another setup, another count than 9 shot records, a view file missing or unreadable, views
+of different sizes or under 32 pixels, a shot record without a camera, a camera below the sample,
+more than half of the pixels saturated, a checkpoint of another kind, no checkpoint.
+
+**Rectification** (:mod:`.rectify`): each view is resampled onto the sample grid of
+``docs/conventions.md`` by projecting the grid's surface points into its camera; the points a
+camera did not frame get in-frame weight 0 (the network ignores them, the errors leave them
+out). The working size follows :func:`.resample.working_size`; the network runs at its grid G
+(rectified views area-averaged to it; a pixel counts as in frame there when all of it was), its
+maps are area-resampled to the working size, its per-pixel lighting stays at G.
+
+**Exposure and units.** The network saw the views at the *reference exposure* (each flash at
+:data:`~ebr_mitsuba.geometry.DEFAULT_FLASH_INTENSITY`). When the flash intensities in photo units
+are known (``--flash-intensity``, else ``capture.json``), view k is multiplied by
+``DEFAULT_FLASH_INTENSITY / I_k`` before the network sees it. The network's lighting has no
+absolute scale (its training loss g4 is scale-invariant), so the re-render fits it: each view is
+``a_k F_k + b E_k``, with ``F_k`` the maps lit by view k's flash at the reference intensity and
+``E_k`` the maps under the predicted per-pixel SGs (both by :func:`ebr_mitsuba.nets.mair_render.
+multiview_renders`), ``a_k`` the known flash factor (unknown: one ``a`` for every view, fitted
+with ``b``) and ``b ≥ 0`` fitted by least squares over the in-frame, unsaturated pixels of all
+views. The lighting written is the network's times ``b``: in photo units.
+
+**Outputs** (beside those of :mod:`.outputs`: ``maps/``, ``inputs/``, ``rerender/``,
+``residual/`` per view name, ``novel/``, ``estimate.json``, ``report.html``):
+
+==============================  ===================================================================
+path                            content
+==============================  ===================================================================
+``inputs/<view>.png``           the rectified views (times their in-frame weight), exposure-matched
+``lighting/lobes.exr``          the per-pixel SGs at the grid: per lobe s the channels
+                                ``sg<s>.axis.X|Y|Z`` (unit, world), ``sg<s>.sharpness``,
+                                ``sg<s>.visibility`` (μ) and ``sg<s>.amplitude.R|G|B`` (μ η b, the
+                                radiance units of the views)
+``lighting/lighting.json``      the lobe count, channel list, η and b
+``lighting/irradiance.exr|png`` the SGs' irradiance on the plane (z-up normal) per pixel
+``lighting/hemispheres.png``    the incident lighting of a 4 × 4 grid of pixels, each seen from
+                                above as ``env_sphere.png`` shows one environment
+``env.json``, ``env_*``         the lobes of the centre pixel as an SG environment and its pictures
+``weights/<view>.png``          the in-frame weight of each view (white: seen)
+==============================  ===================================================================
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__
+from ..errors import InputError
+from ..fsutil import atomic_dir
+from ..geometry import DEFAULT_FLASH_INTENSITY, Shot, setup_shots
+from ..imageio import fast_writes, resize_area, write_exr, write_png
+from ..materials import resample_svbrdf
+from ..metrics import image_errors
+from ..typedconfig import config, option
+from . import outputs
+from .inputs import MAX_SATURATED, WARN_SATURATED, clip_negatives, read_shot, saturation_mask
+from .rectify import rectify
+from .resample import DEFAULT_MAX_SIZE, MIN_INPUT_SIZE, working_size
+
+VIEW_COUNT = 9
+SETUP = "multi-view"
+CAPTURE_JSON = "capture.json"
+CAPTURE_FORMAT = "ebr-capture/1"
+POSITION_WARN = 0.05  # world units (the sample is 2 wide) from the training camera positions
+HEMISPHERE_GRID = 4  # lighting/hemispheres.png: the lighting of GRID × GRID pixels
+HEMISPHERE_SIZE = 48
+_FIX = "give the directory of 'ebr capture --setup multi-view' (its 9 views and capture.json)"
+TRAIN_HINT = (
+    "train one with 'ebr train configs/mair_small.toml' (see docs/mair.md, 'Training') and pass "
+    "--checkpoint RUN/model.pt"
+)
+
+
+@config(error=InputError, cli=True)
+class MultiViewConfig:
+    """Everything a multi-view estimate needs: the options of ``ebr estimate --views`` (flags,
+    defaults and help generated from these fields; ``--out``, ``--checkpoint``,
+    ``--flash-intensity``, ``--saturation-level`` and ``--max-size`` are the flags of the same
+    :class:`~ebr_mitsuba.estimate.pipeline.EstimateConfig` fields). ``views``: the capture
+    directory (module docstring)."""
+
+    views: str = option(
+        meaning="directory of 'ebr capture --setup multi-view': 9 views and capture.json "
+        "(docs/mair.md, 'Estimating'); instead of --flash",
+        flag="--views",
+        metavar="DIR",
+    )
+    out: str = option(
+        meaning="output directory (complete or not at all)", required=True, flag="--out", metavar="DIR"
+    )
+    checkpoint: str | None = option(
+        None,
+        'MAIR model checkpoint (ebr train, kind = "mair")',
+        flag="--checkpoint",
+        metavar="C",
+        shown="none shipped: required",
+    )
+    flash_intensity: float | None = option(
+        None,
+        "every view's flash intensity in W/sr at the views' exposure",
+        above=0,
+        flag="--flash-intensity",
+        metavar="I",
+        shown="capture.json, else fitted",
+    )
+    saturation_level: float | None = option(
+        None, "EXR value at which pixels count as clipped", above=0, flag="--saturation-level", metavar="V"
+    )
+    max_size: int = option(
+        DEFAULT_MAX_SIZE,
+        "largest working size (at least the model grid): larger views are rectified to it",
+        flag="--max-size",
+        metavar="N",
+    )
+
+
+MULTIVIEW_FLAGS = tuple(f.name for f in dataclasses.fields(MultiViewConfig))  # all set by flags
+
+
+@dataclass(frozen=True)
+class ViewShot:
+    """One view of a multi-view capture: its file, camera and flash."""
+
+    name: str
+    path: str
+    camera: tuple[float, float, float]
+    target: tuple[float, float, float]
+    up: tuple[float, float, float]
+    fov: float
+    flash: tuple[float, float, float] | None
+    intensity: float | None = None  # W/sr in photo units; None: unknown
+
+
+# -- the model --------------------------------------------------------------------------------------
+
+
+def model_path(checkpoint: str | None) -> Path:
+    """``checkpoint``; :class:`InputError` when it is not given (no MAIR model is shipped) or missing."""
+    if checkpoint is None:
+        raise InputError(f"--views needs a multi-view (MAIR) model and none is shipped; {TRAIN_HINT}")
+    path = Path(checkpoint)
+    if not path.is_file():
+        raise InputError(
+            f"--checkpoint {checkpoint}: no such file; give a checkpoint of 'ebr train' with kind = \"mair\""
+        )
+    return path
+
+
+def load_mair(path: str | Path):
+    """The MAIR model in ``path`` as a :class:`~ebr_mitsuba.model.predict.MAIRPredictor`; another
+    kind of checkpoint is refused with one line naming the file."""
+    from ..model.predict import as_predictor, load_model
+
+    bundle = load_model(path, expect_kind=None)
+    if bundle.kind != "mair":
+        raise InputError(
+            f"{path}: a '{bundle.kind}' checkpoint, but --views needs a multi-view 'mair' one; {TRAIN_HINT}"
+        )
+    return as_predictor(bundle)
+
+
+# -- the capture ------------------------------------------------------------------------------------
+
+
+def _vector(value, where: str) -> tuple[float, float, float]:
+    try:
+        v = tuple(float(c) for c in value)
+    except (TypeError, ValueError):
+        v = ()
+    if len(v) != 3 or not all(math.isfinite(c) for c in v):
+        raise InputError(f"{where}: expected [x, y, z], got {value!r}; fix {CAPTURE_JSON}")
+    return v
+
+
+def read_capture_json(folder: Path) -> dict:
+    """``folder/capture.json`` of a multi-view capture; :class:`InputError` naming it otherwise."""
+    path = folder / CAPTURE_JSON
+    if not path.is_file():
+        raise InputError(f"--views {folder}: no {CAPTURE_JSON} (the cameras of the views); {_FIX}")
+    try:
+        meta = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"{path}: not readable JSON ({str(exc)[:80]}); fix it or capture again") from None
+    if not isinstance(meta, dict) or meta.get("format") != CAPTURE_FORMAT:
+        raise InputError(f"{path}: not an 'ebr capture' record (no format '{CAPTURE_FORMAT}'); {_FIX}")
+    if meta.get("setup") != SETUP:
+        raise InputError(f"{path}: a '{meta.get('setup')}' capture; --views needs a '{SETUP}' one ({_FIX})")
+    return meta
+
+
+def resolve_views(views: str | Path) -> tuple[list[ViewShot], list[str]]:
+    """The 9 views of the capture directory ``views`` (module docstring, "Inputs"), in record
+    order, and warnings about them."""
+    folder = Path(views)
+    if not folder.is_dir():
+        raise InputError(f"--views {views}: not a directory; {_FIX}")
+    meta = read_capture_json(folder)
+    where = folder / CAPTURE_JSON
+    records = meta.get("shots")
+    n = len(records) if isinstance(records, list) else 0
+    if n != VIEW_COUNT:
+        raise InputError(f"{where}: {n} shot records; a multi-view capture has {VIEW_COUNT} (the 3×3 grid)")
+    shots, warnings = [], []
+    defaults = {s.name: s for s in setup_shots(SETUP)}
+    for k, rec in enumerate(records):
+        if not isinstance(rec, dict) or not isinstance(rec.get("file"), str):
+            raise InputError(f"{where}: shot record {k} has no 'file'; fix {CAPTURE_JSON}")
+        name = str(rec.get("name") or f"view{k}")
+        for key in ("camera", "fov"):
+            if rec.get(key) is None:
+                raise InputError(f"{where}: shot {name} has no '{key}'; fix {CAPTURE_JSON}")
+        camera = _vector(rec["camera"], f"{where}: shot {name} camera")
+        target = _vector(rec.get("target", [0.0, 0.0, 0.0]), f"{where}: shot {name} target")
+        up = _vector(rec.get("up", [0.0, 1.0, 0.0]), f"{where}: shot {name} up")
+        try:
+            fov = float(rec["fov"])
+        except (TypeError, ValueError):
+            fov = float("nan")
+        if not (0 < fov < 180):
+            raise InputError(f"{where}: shot {name} fov {rec['fov']!r}: give degrees in (0, 180)")
+        if camera[2] <= 0:
+            raise InputError(f"{where}: shot {name} camera {list(camera)} is not above the sample (z > 0)")
+        flash = None if rec.get("flash") is None else _vector(rec["flash"], f"{where}: shot {name} flash")
+        intensity = rec.get("flash_intensity")
+        intensity = float(intensity) if isinstance(intensity, (int, float)) and flash is not None else None
+        if intensity is not None and not (math.isfinite(intensity) and intensity > 0):
+            raise InputError(f"{where}: shot {name} flash_intensity {intensity}: give a finite value > 0")
+        path = folder / rec["file"]
+        if not path.is_file():
+            raise InputError(f"--views {folder}: view {name} ({path.name}) is missing; {_FIX}")
+        shots.append(ViewShot(name, str(path), camera, target, up, fov, flash, intensity))
+        ref = defaults.get(name)
+        if ref is not None and math.dist(camera, ref.camera) > POSITION_WARN:
+            warnings.append(
+                f"{name}: camera at {list(camera)}, {math.dist(camera, ref.camera):.2f} from the position "
+                f"the model was trained with ({list(ref.camera)}); expect a bias"
+            )
+        if flash is None or math.dist(flash, camera) > POSITION_WARN:
+            warnings.append(f"{name}: the flash is not at the camera; the model was trained with it there")
+    if len({s.path for s in shots}) != VIEW_COUNT:
+        raise InputError(f"{where}: two shot records name the same file; give one image per view")
+    return shots, warnings
+
+
+@dataclass
+class RectifiedViews:
+    """The views on the sample grid at the working size: ``images`` (name → (W, W, 3), photo units,
+    times the in-frame weight), ``weights`` (name → (W, W) in {0, 1}), ``saturated`` (name →
+    (W, W) bool), ``source_size`` (h, w) of the camera images."""
+
+    images: dict[str, np.ndarray]
+    weights: dict[str, np.ndarray]
+    saturated: dict[str, np.ndarray]
+    source_size: tuple[int, int]
+    saturated_fraction: float
+
+
+def load_views(
+    shots: list[ViewShot],
+    saturation_level: float | None,
+    max_size: int,
+    grid: int,
+    warnings: list[str],
+    progress: Callable[[str], None] | None = None,
+) -> tuple[RectifiedViews, int]:
+    """Read, check and rectify the views (module docstring); returns them and the working size."""
+    images, levels = {}, {}
+    for s in shots:
+        images[s.name], levels[s.name] = read_shot(s.path, "views")
+    shapes = {k: v.shape[:2] for k, v in images.items()}
+    first = shots[0]
+    for s in shots:
+        if shapes[s.name] != shapes[first.name]:
+            a, b = shapes[s.name], shapes[first.name]
+            raise InputError(
+                f"--views: {s.path} is {a[1]}x{a[0]} but {first.path} is {b[1]}x{b[0]}; "
+                f"give 9 views of one size"
+            )
+    h, w = shapes[first.name]
+    if min(h, w) < MIN_INPUT_SIZE:
+        raise InputError(
+            f"--views: {first.path} is {w}x{h} pixels; ebr estimate needs at least {MIN_INPUT_SIZE} "
+            f"pixels on the shorter side"
+        )
+    work = working_size(min(h, w), grid, max_size)
+    if min(h, w) > work:
+        warnings.append(
+            f"the views are {w}x{h} pixels: estimating at {work}x{work} (the working size limit, "
+            f"--max-size {max_size}); give --max-size {min(h, w)} for the full size"
+        )
+    masks = {k: saturation_mask({k: v}, {k: levels[k]}, saturation_level) for k, v in images.items()}
+    frac = float(np.mean([m.mean() for m in masks.values()]))
+    if frac > MAX_SATURATED:
+        raise InputError(
+            f"--views: {frac:.0%} of the pixels are saturated (clipped) in the views; lower the exposure "
+            f"and capture again"
+        )
+    if frac > WARN_SATURATED:
+        warnings.append(f"{frac:.1%} of the pixels are saturated; they are left out of the errors")
+    clip_negatives(images, warnings)
+    rect, weights, sat = {}, {}, {}
+    for s in shots:
+        if progress is not None:
+            progress(s.name)
+        img, wt = rectify(images[s.name], s.camera, s.target, s.up, s.fov, work)
+        m, _ = rectify(masks[s.name].astype(np.float32), s.camera, s.target, s.up, s.fov, work)
+        if not wt.any():
+            raise InputError(f"--views: {s.path}: its camera does not see the sample; check {CAPTURE_JSON}")
+        rect[s.name] = (img * wt[..., None]).astype(np.float32)
+        weights[s.name] = wt
+        sat[s.name] = m[..., 0] > 0
+    return RectifiedViews(rect, weights, sat, (int(h), int(w)), frac), work
+
+
+# -- re-renders -------------------------------------------------------------------------------------
+
+
+def _torch_maps(maps):
+    import torch
+
+    from ..nets.maps import Maps
+
+    def t(a):
+        a = np.asarray(a, np.float32)
+        a = a[..., None] if a.ndim == 2 else a
+        return torch.from_numpy(np.ascontiguousarray(a)).permute(2, 0, 1)[None]
+
+    return Maps(t(maps.normal), t(maps.diffuse), t(maps.specular), t(maps.roughness))
+
+
+def _torch_lighting(lighting, size: int):
+    """:class:`~ebr_mitsuba.model.predictor.PixelLighting` as the torch one, bilinearly resized to
+    ``size``² (axes renormalised)."""
+    import torch
+    import torch.nn.functional as F
+
+    from ..nets.mair_lighting import PixelSGLighting
+
+    def t(a, channels):  # (S, H, W[, C]) → (1, S, C, size, size)
+        x = torch.from_numpy(np.ascontiguousarray(a, np.float32))
+        x = x[..., None] if x.ndim == 3 else x
+        x = x.permute(0, 3, 1, 2)
+        if x.shape[-1] != size:
+            x = F.interpolate(x, size=(size, size), mode="bilinear", align_corners=False)
+        return x[None]
+
+    axis = t(lighting.axis, 3)
+    axis = axis / axis.norm(dim=2, keepdim=True).clamp_min(1e-8)
+    return PixelSGLighting(
+        axis,
+        t(lighting.sharpness, 1),
+        t(lighting.visibility, 1),
+        torch.from_numpy(np.asarray(lighting.intensity, np.float32))[None],
+    )
+
+
+def rerender_parts(maps, lighting, shots: list[ViewShot], size: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per view (N, size, size, 3): the maps lit by the view's flash at
+    :data:`DEFAULT_FLASH_INTENSITY` from its position, and under the per-pixel SGs. The renderer
+    (:func:`~ebr_mitsuba.nets.mair_render.multiview_renders`) takes the flash at the camera, as
+    in the 3×3 setup (a flash elsewhere is a warning of :func:`resolve_views`)."""
+    import torch
+
+    from ..nets.mair_render import multiview_renders
+    from ..nets.mair_views import view_direction_maps
+
+    with torch.no_grad():
+        m = _torch_maps(maps)
+        lt = _torch_lighting(lighting, size)
+        vshots = [Shot(s.name, s.camera, s.fov, s.flash) for s in shots]
+        dirs = view_direction_maps(size, size, vshots)
+        flashes = torch.tensor(
+            [s.flash if s.flash is not None else s.camera for s in shots], dtype=torch.float32
+        )
+        env_d, env_s = multiview_renders(m, lt, dirs, flashes, 0.0)
+        dark = dataclasses.replace(lt, visibility=torch.zeros_like(lt.visibility))
+        fl_d, fl_s = multiview_renders(m, dark, dirs, flashes, DEFAULT_FLASH_INTENSITY)
+
+    def hwc(x):
+        return x[0].permute(0, 2, 3, 1).numpy().astype(np.float32)
+
+    return hwc(fl_d + fl_s), hwc(env_d + env_s)
+
+
+def fit_scales(photos, flash, env, masks, known: list[float] | None) -> tuple[list[float], float]:
+    """``(a_k per view, b)``: photo k ≈ a_k flash_k + b env_k by least squares over ``masks``
+    (module docstring); ``known``: the a_k (else one fitted a for every view). Both ≥ 0."""
+    p = [np.asarray(x, np.float64)[m] for x, m in zip(photos, masks)]
+    f = [np.asarray(x, np.float64)[m] for x, m in zip(flash, masks)]
+    e = [np.asarray(x, np.float64)[m] for x, m in zip(env, masks)]
+    ee = sum(float(np.sum(x * x)) for x in e)
+    if known is not None:
+        r = [pk - a * fk for pk, a, fk in zip(p, known, f)]
+        b = sum(float(np.sum(x * y)) for x, y in zip(r, e)) / ee if ee > 0 else 0.0
+        return list(known), max(b, 0.0)
+    ff = sum(float(np.sum(x * x)) for x in f)
+    fe = sum(float(np.sum(x * y)) for x, y in zip(f, e))
+    pf = sum(float(np.sum(x * y)) for x, y in zip(p, f))
+    pe = sum(float(np.sum(x * y)) for x, y in zip(p, e))
+    det = ff * ee - fe * fe
+    a, b = (
+        ((pf * ee - pe * fe) / det, (pe * ff - pf * fe) / det)
+        if det > 1e-12 * max(ff * ee, 1e-30)
+        else (-1, -1)
+    )
+    if a < 0 or b < 0:  # the best of the two one-term fits
+        a1 = pf / ff if ff > 0 else 0.0
+        b1 = pe / ee if ee > 0 else 0.0
+        r_a = sum(float(np.sum((pk - a1 * fk) ** 2)) for pk, fk in zip(p, f))
+        r_b = sum(float(np.sum((pk - b1 * ek) ** 2)) for pk, ek in zip(p, e))
+        a, b = (max(a1, 0.0), 0.0) if r_a <= r_b else (0.0, max(b1, 0.0))
+    if not a > 0:
+        raise InputError(
+            "--views: the views show no light from their flashes; check the files, or give --flash-intensity"
+        )
+    return [a] * len(photos), b
+
+
+# -- lighting files ---------------------------------------------------------------------------------
+
+
+def lobe_channels(num_sgs: int) -> list[str]:
+    """The channel names of ``lighting/lobes.exr`` (module docstring)."""
+    out = []
+    for s in range(num_sgs):
+        out += [f"sg{s}.axis.{c}" for c in "XYZ"] + [f"sg{s}.sharpness", f"sg{s}.visibility"]
+        out += [f"sg{s}.amplitude.{c}" for c in "RGB"]
+    return out
+
+
+def lighting_irradiance(lighting) -> np.ndarray:
+    """Irradiance (H, W, 3) of the per-pixel SGs on the z-up plane (each lobe a directional
+    light of its integral, as the re-render reads it)."""
+    lam = lighting.sharpness.astype(np.float64)
+    integral = 2 * np.pi * (-np.expm1(-2 * lam)) / lam
+    cos = np.maximum(lighting.axis[..., 2].astype(np.float64), 0.0)
+    return np.einsum("shw,shwc->hwc", integral * cos, lighting.amplitude.astype(np.float64)).astype(
+        np.float32
+    )
+
+
+def hemisphere_mosaic(lighting, grid: int = HEMISPHERE_GRID, size: int = HEMISPHERE_SIZE) -> np.ndarray:
+    """The incident lighting of a ``grid × grid`` set of pixels (evenly spread, row-major as in the
+    image), each an upper hemisphere seen from above (+x right, +y up), tiled with 2-pixel gaps."""
+    d, inside = outputs.hemisphere_directions(size)
+    h, w = lighting.shape
+    rows = [int((r + 0.5) * h / grid) for r in range(grid)]
+    cols = [int((c + 0.5) * w / grid) for c in range(grid)]
+    gap = 2
+    mosaic = np.zeros((grid * (size + gap) - gap, grid * (size + gap) - gap, 3), np.float32)
+    for a, i in enumerate(rows):
+        for b, j in enumerate(cols):
+            img = lighting.pixel_environment(i, j).eval(d.reshape(-1, 3)).reshape(size, size, 3)
+            y, x = a * (size + gap), b * (size + gap)
+            mosaic[y : y + size, x : x + size] = img * inside[..., None]
+    return mosaic
+
+
+def write_lighting(out: Path, network_lighting, scale: float) -> list[str]:
+    """``lighting/`` and ``env.json`` + pictures of the centre pixel (module docstring): the
+    network's lighting times ``scale``."""
+    (out / "lighting").mkdir(exist_ok=True)
+    lighting = network_lighting.scaled(scale)
+    amp = lighting.amplitude
+    planes = []
+    for s in range(lighting.num_sgs):
+        planes += [
+            lighting.axis[s],
+            lighting.sharpness[s][..., None],
+            lighting.visibility[s][..., None],
+            amp[s],
+        ]
+    with fast_writes():
+        write_exr(
+            out / "lighting" / "lobes.exr",
+            np.concatenate(planes, axis=-1),
+            channels=lobe_channels(lighting.num_sgs),
+        )
+    meta = {
+        "format": "ebr-pixel-sg/1",
+        "num_sgs": lighting.num_sgs,
+        "resolution": list(lighting.shape),
+        "channels": lobe_channels(lighting.num_sgs),
+        "radiance": "L_p(w) = sum_s amplitude_s(p) exp(sharpness_s(p) (axis_s(p).w - 1)); amplitude = "
+        "visibility * intensity (photo units)",
+        "intensity": lighting.intensity.tolist(),
+        "network_intensity": network_lighting.intensity.tolist(),
+        "scale": float(scale),
+        "scale_note": "intensity = network_intensity * scale (least squares of the re-renders to the views)",
+    }
+    (out / "lighting" / "lighting.json").write_text(json.dumps(meta, indent=1) + "\n")
+    irr = lighting_irradiance(lighting)
+    mosaic = hemisphere_mosaic(lighting)
+    with fast_writes():
+        write_exr(out / "lighting" / "irradiance.exr", irr)
+    outputs.preview(out / "lighting" / "irradiance.png", irr, outputs.exposure_of(irr))
+    sky = float(np.median(mosaic[mosaic.sum(-1) > 0].sum(-1) / 3)) if (mosaic > 0).any() else 0.0
+    outputs.preview(out / "lighting" / "hemispheres.png", mosaic, 0.25 / sky if sky > 0 else 1.0)
+    env = lighting.pixel_environment()
+    env.save(out / "env.json")
+    files = ["lighting/lobes.exr", "lighting/lighting.json", "lighting/irradiance.exr"]
+    files += ["lighting/irradiance.png", "lighting/hemispheres.png"]
+    return files + outputs.env_pictures(env, out)
+
+
+def write_weights(out: Path, weights: dict[str, np.ndarray]) -> list[str]:
+    (out / "weights").mkdir(exist_ok=True)
+    files = []
+    for name, w in weights.items():
+        with fast_writes():
+            write_png(out / "weights" / f"{name}.png", np.repeat(w[..., None], 3, axis=-1), encode="linear")
+        files.append(f"weights/{name}.png")
+    return files
+
+
+# -- the job ----------------------------------------------------------------------------------------
+
+
+def run_multiview(
+    cfg: MultiViewConfig,
+    *,
+    log: Callable[[str], None] | None = None,
+    bar: Callable | None = None,
+    predictor=None,
+) -> dict:
+    """Run the multi-view estimate of ``cfg``; return the summary (also ``estimate.json``).
+
+    ``log(msg)``: stage messages (stderr in the command); ``bar``: a tqdm-like factory for the
+    progress bar (stderr); ``predictor``: a :class:`~ebr_mitsuba.model.predictor.ViewsPredictor`
+    already loaded (None: ``cfg.checkpoint``)."""
+    from ..model.predictor import ViewsPredictor
+    from .pipeline import ESTIMATE_FORMAT, check_out_dir
+
+    log = log or (lambda msg: None)
+    timings: dict[str, float] = {}
+    t_start = time.perf_counter()
+
+    def stage(name, t0):
+        timings[name] = round(time.perf_counter() - t0, 3)
+
+    out = Path(cfg.out)
+    t0 = time.perf_counter()
+    check_out_dir(out)
+    path = model_path(cfg.checkpoint) if predictor is None else None
+    shots, warnings = resolve_views(cfg.views)
+    if cfg.saturation_level is not None and not (
+        math.isfinite(cfg.saturation_level) and cfg.saturation_level > 0
+    ):
+        raise InputError(f"--saturation-level {cfg.saturation_level}: give a finite value > 0")
+    if cfg.flash_intensity is not None:
+        value = float(cfg.flash_intensity)
+        if not (math.isfinite(value) and value > 0):
+            raise InputError(f"--flash-intensity {value}: give a finite value > 0")
+        known = [value] * VIEW_COUNT
+        known_source = "--flash-intensity"
+    elif all(s.intensity is not None for s in shots):
+        known, known_source = [float(s.intensity) for s in shots], CAPTURE_JSON
+    else:
+        known, known_source = None, None
+    stage("inputs", t0)
+
+    t0 = time.perf_counter()
+    if predictor is None:
+        log(f"loading {path}")
+        predictor = load_mair(path)
+    if not isinstance(predictor, ViewsPredictor):
+        raise InputError(f"--checkpoint {cfg.checkpoint}: not a multi-view model; {TRAIN_HINT}")
+    grid = int(predictor.grid)
+    if cfg.max_size < grid:
+        raise InputError(f"--max-size {cfg.max_size} is below the model grid {grid}; give at least {grid}")
+    stage("model", t0)
+
+    steps = VIEW_COUNT + 4
+    progress = bar(total=steps, desc="estimate --views", unit="step") if bar is not None else None
+
+    def tick(what: str) -> None:
+        if progress is not None:
+            progress.set_postfix_str(what)
+            progress.update(1)
+
+    try:
+        t0 = time.perf_counter()
+        log(f"rectifying the {VIEW_COUNT} views onto the sample grid")
+        views, work = load_views(shots, cfg.saturation_level, cfg.max_size, grid, warnings, tick)
+        for w in warnings:
+            log(f"warning: {w}")
+        stage("rectify", t0)
+
+        t0 = time.perf_counter()
+        log(f"estimating the maps and the per-pixel lighting at {grid}x{grid} (working size {work}x{work})")
+        names = [s.name for s in shots]
+        to_reference = [DEFAULT_FLASH_INTENSITY / k for k in known] if known else [1.0] * VIEW_COUNT
+        stack = np.stack([views.images[n] * np.float32(f) for n, f in zip(names, to_reference)])
+        wts = np.stack([views.weights[n] for n in names])
+        if work != grid:
+            stack = np.stack([resize_area(v, (grid, grid)) for v in stack])
+            wts = np.stack([resize_area(w[..., None], (grid, grid))[..., 0] >= 1 - 1e-6 for w in wts])
+        pred = predictor.predict_views(
+            stack.astype(np.float32), wts.astype(np.float32), [s.camera for s in shots]
+        )
+        maps = pred.maps if work == grid else resample_svbrdf(pred.maps, work)
+        if maps.shape != (work, work):
+            raise RuntimeError(f"the network returned {maps.shape} maps for a {work}x{work} grid")
+        tick("network")
+        stage("network", t0)
+
+        t0 = time.perf_counter()
+        log(f"re-rendering the {VIEW_COUNT} views")
+        flash, env = rerender_parts(maps, pred.lighting, shots, work)
+        photos = [views.images[n] for n in names]
+        masks = [(views.weights[n] > 0) & ~views.saturated[n] for n in names]
+        factors = [k / DEFAULT_FLASH_INTENSITY for k in known] if known else None
+        a, b = fit_scales(photos, flash, env, masks, factors)
+        renders, errors = {}, {}
+        for k, n in enumerate(names):
+            r = (a[k] * flash[k] + b * env[k]) * views.weights[n][..., None]
+            renders[n] = r.astype(np.float32)
+            errors[n] = image_errors(r, photos[k], masks[k])
+        errors["mean"] = {
+            key: float(np.mean([errors[n][key] for n in names])) for key in ("rmse", "rel_rmse")
+        }
+        lighting = pred.lighting.scaled(b)
+        intensities = {
+            n: (a[k] * DEFAULT_FLASH_INTENSITY, known_source if known else "fitted")
+            for k, n in enumerate(names)
+        }
+        tick("re-render")
+        stage("rerender", t0)
+
+        summary = {
+            "format": ESTIMATE_FORMAT,
+            "version": __version__,
+            "out": str(out),
+            "capture": SETUP,
+            "model": {"kind": "mair", "checkpoint": str(path) if path is not None else None},
+            "inputs": {
+                "paths": {s.name: s.path for s in shots},
+                "views": {
+                    s.name: {
+                        "camera": list(s.camera),
+                        "fov": s.fov,
+                        "in_frame": float(views.weights[s.name].mean()),
+                    }
+                    for s in shots
+                },
+                "size": [work, work],
+                "source_size": list(views.source_size),
+                "fov": shots[0].fov,
+                "flash_only": False,
+                "exposure": {n: {"factor": 1.0, "source": "as captured (one exposure)"} for n in names},
+                "shifts": {},
+                "alignment": {},
+                "highlight": None,
+                "saturated_fraction": views.saturated_fraction,
+                "warnings": list(warnings),
+                "geometry": str(Path(cfg.views) / CAPTURE_JSON),
+            },
+            "model_grid": grid,
+            "resolution": work,
+            "tiles": 1,
+            "tile": work,
+            "ensemble": [work],
+            "render_mode": "per-pixel SGs",
+            "flash": {n: {"intensity": float(v), "source": src} for n, (v, src) in intensities.items()},
+            "exposure": {
+                "to_reference": dict(zip(names, to_reference)),
+                "source": known_source or "none (the reference exposure assumed)",
+            },
+            "lobes": lighting.num_sgs,
+            "lighting": {
+                "per_pixel_sgs": lighting.num_sgs,
+                "grid": list(lighting.shape),
+                "scale": float(b),
+                "centre_pixel": "env.json",
+            },
+            "rerender_error": {"network": errors, "refined": None},
+            "refine": None,
+            "prediction_timings": {k: round(v, 3) for k, v in pred.timings.items()},
+            "flash_fit": None,
+            "warnings": list(warnings),
+            "timings": timings,
+        }
+
+        t0 = time.perf_counter()
+        log(f"writing {out}")
+        with atomic_dir(out) as tmp:
+            files = outputs.write_maps(maps, tmp / "maps", "ebr estimate --views (MAIR network)")
+            files += outputs.write_shots(tmp, dict(zip(names, photos)), renders)
+            files += write_weights(tmp, views.weights)
+            files += write_lighting(tmp, pred.lighting, b)
+            centre = shots[VIEW_COUNT // 2]
+            files += outputs.write_novel(
+                maps, lighting.pixel_environment(), intensities[centre.name][0], tmp, float(centre.camera[2])
+            )
+            stage("outputs", t0)
+            tick("outputs")
+            outputs.write_report_and_summary(tmp, summary, files, t_start, stage)
+            tick("report")
+    finally:
+        if progress is not None:
+            progress.close()
+    return summary
+
+
+__all__ = [
+    "MULTIVIEW_FLAGS",
+    "MultiViewConfig",
+    "TRAIN_HINT",
+    "VIEW_COUNT",
+    "ViewShot",
+    "fit_scales",
+    "load_mair",
+    "load_views",
+    "model_path",
+    "resolve_views",
+    "run_multiview",
+]
