@@ -3,11 +3,11 @@ sample grid of docs/conventions.md.
 
 A Lambertian texture lit by a distant environment alone has the same radiance from every view, so
 each of the 9 Mitsuba renders of ``--setup multi-view`` (flash off), rectified, must show the
-texture-space image of the near camera. Tolerance: 24², 64 spp; over the in-frame pixels but the
-outermost ring (bilinear there mixes the black beyond the sample's edge), the mean relative error
-to a 512-spp centre render is under 4 % (measured 2.1–2.3 %; the 64-spp centre render itself
-2.9 %), and a mirrored camera frame fails it. The in-frame weights match
-``nets.mair_views.in_frame_weights``.
+texture-space image of the near camera. Tolerance: 24², 64 spp; over the pixels of weight 1 (in
+frame, and not interpolated from camera pixels that straddle the sample's edge), the mean relative
+error to a 512-spp centre render is under 4 % (measured about 2 %; the 64-spp centre render
+itself 2.9 %), and a mirrored camera frame fails it. Without the edge test the weights are
+``nets.mair_views.in_frame_weights``, which the networks were trained with.
 """
 
 from __future__ import annotations
@@ -52,9 +52,7 @@ def renders():
 
 
 def _error(rect, weight, clean):
-    inner = np.zeros(weight.shape, bool)
-    inner[1:-1, 1:-1] = True
-    keep = (weight > 0) & inner
+    keep = weight > 0
     return float(np.abs(rect - clean)[keep].mean() / clean.mean())
 
 
@@ -66,8 +64,15 @@ def test_rectified_views_show_the_texture(renders):
     for k, (s, image) in enumerate(zip(shots, images)):
         rect, weight = rectify(image, s.camera, s.target, s.up, s.fov, N)
         assert rect.shape == (N, N, 3) and weight.shape == (N, N)
-        assert np.array_equal(weight, expected_weights[k]), s.name
-        assert 0.95 < weight.mean() <= 1.0, s.name
+        # in frame and interpolated from camera pixels that saw the sample alone: the frame test of
+        # the networks' weights, less (oblique views) a ring along the sample's edges (two pixels
+        # wide on the far side, where the camera's pixels are larger than the grid's)
+        assert np.all(weight <= expected_weights[k]), s.name
+        inner = (slice(2, -2), slice(2, -2))
+        assert np.array_equal(weight[inner], expected_weights[k][inner]), s.name
+        assert 0.8 < weight.mean() <= 1.0, (s.name, weight.mean())
+        _, frame_only = rectify(image, s.camera, s.target, s.up, s.fov, N, sample_only=False)
+        assert np.array_equal(frame_only, expected_weights[k]), s.name
         assert _error(rect, weight, clean) < TOLERANCE, (s.name, _error(rect, weight, clean))
         # the camera frame mirrored (up flipped): the rectification no longer matches
         if s.camera[:2] != (0.0, 0.0):

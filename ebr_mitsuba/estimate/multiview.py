@@ -185,17 +185,21 @@ def model_path(checkpoint: str | None) -> Path:
     return path
 
 
-def load_mair(path: str | Path):
+def load_mair(path: str | Path, device: str = "auto"):
     """The MAIR model in ``path`` as a :class:`~ebr_mitsuba.model.predict.MAIRPredictor`; another
     kind of checkpoint is refused with one line naming the file."""
-    from ..model.predict import as_predictor, load_model
+    from ..model.bundle import bundle_from_checkpoint
+    from ..model.checkpoint import load_checkpoint
+    from ..model.device import pick_device
+    from ..model.predict import as_predictor
 
-    bundle = load_model(path, expect_kind=None)
-    if bundle.kind != "mair":
+    data = load_checkpoint(path)
+    if data.get("kind") != "mair":
         raise InputError(
-            f"{path}: a '{bundle.kind}' checkpoint, but --views needs a multi-view 'mair' one; {TRAIN_HINT}"
+            f"{path}: a '{data.get('kind')}' checkpoint, but --views needs a multi-view 'mair' one; "
+            f"{TRAIN_HINT}"
         )
-    return as_predictor(bundle)
+    return as_predictor(bundle_from_checkpoint(data, str(path), pick_device(device)).train(False))
 
 
 # -- the capture ------------------------------------------------------------------------------------
@@ -282,6 +286,20 @@ def resolve_views(views: str | Path) -> tuple[list[ViewShot], list[str]]:
 
 
 @dataclass
+class CameraViews:
+    """The 9 camera images as read and checked: ``images`` (name → (h, w, 3) float32, photo
+    units, negatives clipped), ``saturated`` (name → (h, w) bool), ``saturated_fraction``."""
+
+    images: dict[str, np.ndarray]
+    saturated: dict[str, np.ndarray]
+    saturated_fraction: float
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return next(iter(self.images.values())).shape[:2]
+
+
+@dataclass
 class RectifiedViews:
     """The views on the sample grid at the working size: ``images`` (name → (W, W, 3), photo units,
     times the in-frame weight), ``weights`` (name → (W, W) in {0, 1}), ``saturated`` (name →
@@ -294,15 +312,11 @@ class RectifiedViews:
     saturated_fraction: float
 
 
-def load_views(
-    shots: list[ViewShot],
-    saturation_level: float | None,
-    max_size: int,
-    grid: int,
-    warnings: list[str],
-    progress: Callable[[str], None] | None = None,
-) -> tuple[RectifiedViews, int]:
-    """Read, check and rectify the views (module docstring); returns them and the working size."""
+def read_views(shots: list[ViewShot], saturation_level: float | None, warnings: list[str]) -> CameraViews:
+    """Read and check the 9 camera images (module docstring, "Inputs"): one size, at least
+    :data:`MIN_INPUT_SIZE` pixels, at most half of the pixels saturated."""
+    if saturation_level is not None and not (math.isfinite(saturation_level) and saturation_level > 0):
+        raise InputError(f"--saturation-level {saturation_level}: give a finite value > 0")
     images, levels = {}, {}
     for s in shots:
         images[s.name], levels[s.name] = read_shot(s.path, "views")
@@ -321,12 +335,6 @@ def load_views(
             f"--views: {first.path} is {w}x{h} pixels; ebr estimate needs at least {MIN_INPUT_SIZE} "
             f"pixels on the shorter side"
         )
-    work = working_size(min(h, w), grid, max_size)
-    if min(h, w) > work:
-        warnings.append(
-            f"the views are {w}x{h} pixels: estimating at {work}x{work} (the working size limit, "
-            f"--max-size {max_size}); give --max-size {min(h, w)} for the full size"
-        )
     masks = {k: saturation_mask({k: v}, {k: levels[k]}, saturation_level) for k, v in images.items()}
     frac = float(np.mean([m.mean() for m in masks.values()]))
     if frac > MAX_SATURATED:
@@ -337,18 +345,29 @@ def load_views(
     if frac > WARN_SATURATED:
         warnings.append(f"{frac:.1%} of the pixels are saturated; they are left out of the errors")
     clip_negatives(images, warnings)
+    return CameraViews(images, masks, frac)
+
+
+def rectify_views(
+    shots: list[ViewShot],
+    camera: CameraViews,
+    work: int,
+    progress: Callable[[str], None] | None = None,
+) -> RectifiedViews:
+    """The views on the ``work``² sample grid (module docstring, "Rectification")."""
     rect, weights, sat = {}, {}, {}
     for s in shots:
         if progress is not None:
             progress(s.name)
-        img, wt = rectify(images[s.name], s.camera, s.target, s.up, s.fov, work)
-        m, _ = rectify(masks[s.name].astype(np.float32), s.camera, s.target, s.up, s.fov, work)
+        img, wt = rectify(camera.images[s.name], s.camera, s.target, s.up, s.fov, work)
+        m, _ = rectify(camera.saturated[s.name].astype(np.float32), s.camera, s.target, s.up, s.fov, work)
         if not wt.any():
             raise InputError(f"--views: {s.path}: its camera does not see the sample; check {CAPTURE_JSON}")
         rect[s.name] = (img * wt[..., None]).astype(np.float32)
         weights[s.name] = wt
         sat[s.name] = m[..., 0] > 0
-    return RectifiedViews(rect, weights, sat, (int(h), int(w)), frac), work
+    h, w = camera.size
+    return RectifiedViews(rect, weights, sat, (int(h), int(w)), camera.saturated_fraction)
 
 
 # -- re-renders -------------------------------------------------------------------------------------
@@ -582,10 +601,7 @@ def run_multiview(
     check_out_dir(out)
     path = model_path(cfg.checkpoint) if predictor is None else None
     shots, warnings = resolve_views(cfg.views)
-    if cfg.saturation_level is not None and not (
-        math.isfinite(cfg.saturation_level) and cfg.saturation_level > 0
-    ):
-        raise InputError(f"--saturation-level {cfg.saturation_level}: give a finite value > 0")
+    camera_views = read_views(shots, cfg.saturation_level, warnings)
     if cfg.flash_intensity is not None:
         value = float(cfg.flash_intensity)
         if not (math.isfinite(value) and value > 0):
@@ -600,14 +616,20 @@ def run_multiview(
 
     t0 = time.perf_counter()
     if predictor is None:
-        log(f"loading {path}")
         predictor = load_mair(path)
     if not isinstance(predictor, ViewsPredictor):
         raise InputError(f"--checkpoint {cfg.checkpoint}: not a multi-view model; {TRAIN_HINT}")
     grid = int(predictor.grid)
-    if cfg.max_size < grid:
-        raise InputError(f"--max-size {cfg.max_size} is below the model grid {grid}; give at least {grid}")
+    size = min(camera_views.size)
+    work = working_size(size, grid, cfg.max_size)
+    if size > work:
+        warnings.append(
+            f"the views are {size}x{size} pixels or more: estimating at {work}x{work} (the working size "
+            f"limit, --max-size {cfg.max_size}); give --max-size {size} for the full size"
+        )
     stage("model", t0)
+    for w in warnings:
+        log(f"warning: {w}")
 
     steps = VIEW_COUNT + 4
     progress = bar(total=steps, desc="estimate --views", unit="step") if bar is not None else None
@@ -620,9 +642,7 @@ def run_multiview(
     try:
         t0 = time.perf_counter()
         log(f"rectifying the {VIEW_COUNT} views onto the sample grid")
-        views, work = load_views(shots, cfg.saturation_level, cfg.max_size, grid, warnings, tick)
-        for w in warnings:
-            log(f"warning: {w}")
+        views = rectify_views(shots, camera_views, work, tick)
         stage("rectify", t0)
 
         t0 = time.perf_counter()
@@ -749,7 +769,8 @@ __all__ = [
     "ViewShot",
     "fit_scales",
     "load_mair",
-    "load_views",
+    "read_views",
+    "rectify_views",
     "model_path",
     "resolve_views",
     "run_multiview",

@@ -6,9 +6,12 @@ the sample (a Mitsuba capture, a photograph) from a pinhole camera at ``camera``
 ``target`` with ``up`` and horizontal field of view ``fov`` is rectified by projecting every
 ``p_ij`` into that camera and sampling the image bilinearly there (:func:`rectify`). Points
 outside the camera's frame (or behind it) get in-frame weight 0 and the value of the nearest edge
-pixel; the weight is 1 elsewhere. The camera frame is Mitsuba's ``look_at`` frame: image right
-is ``forward × up``, image up is ``right × forward``; pixel centres at ``(j + ½) / w`` of the
-frame (what :func:`ebr_mitsuba.nets.mair_views.in_frame_weights` assumes for the 3×3 grid).
+pixel; so do the points interpolated from a camera pixel that straddles the sample's edge (it
+mixes in what lies beyond the sample: the outermost ring of an oblique view). The weight is 1
+elsewhere. The camera frame is Mitsuba's ``look_at`` frame: image right is ``forward × up``,
+image up is ``right × forward``; pixel centres at ``(j + ½) / w`` of the frame (as
+:func:`ebr_mitsuba.nets.mair_views.in_frame_weights` assumes for the 3×3 grid, whose weights are
+the frame test alone).
 
 For a camera that is already in the sample grid (the near camera: centred, fronto-parallel,
 framing exactly [−1, 1]²) at the grid's size, rectification returns the image itself.
@@ -74,18 +77,42 @@ def bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return top * (1 - ty) + bottom * ty
 
 
+def on_sample_pixels(camera, target, up, fov: float, image_size: tuple[int, int]) -> np.ndarray:
+    """(h, w) bool: camera pixels whose whole footprint lies on the sample square [−1, 1]² of the
+    plane z = 0 (all four corners' rays meet the plane inside it)."""
+    h, w = image_size
+    c, f, r, u = camera_frame(camera, target, up)
+    half_x = math.tan(math.radians(float(fov)) / 2)
+    half_y = half_x * h / w
+    nx = (2.0 * np.arange(w + 1) / w - 1.0) * half_x
+    ny = (1.0 - 2.0 * np.arange(h + 1) / h) * half_y
+    d = f + nx[None, :, None] * r + ny[:, None, None] * u  # (h+1, w+1, 3)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = -c[2] / d[..., 2]
+    p = c + t[..., None] * d
+    ok = (d[..., 2] < 0) & (t > 0) & (np.abs(p[..., 0]) <= 1 + 1e-6) & (np.abs(p[..., 1]) <= 1 + 1e-6)
+    return ok[:-1, :-1] & ok[1:, :-1] & ok[:-1, 1:] & ok[1:, 1:]
+
+
 def rectify(
-    image: np.ndarray, camera, target, up, fov: float, size: int | tuple[int, int]
+    image: np.ndarray, camera, target, up, fov: float, size: int | tuple[int, int], sample_only: bool = True
 ) -> tuple[np.ndarray, np.ndarray]:
     """``image`` (h, w, C) of a camera (module docstring) on the sample grid of ``size`` (int:
-    square, or (H, W)): ``(rectified (H, W, C) float32, in-frame weight (H, W) float32 in {0, 1})``."""
+    square, or (H, W)): ``(rectified (H, W, C) float32, in-frame weight (H, W) float32 in {0, 1})``.
+
+    The weight is 1 where the grid point lies in the camera's frame and (``sample_only``) every
+    camera pixel it is interpolated from saw the sample alone (:func:`on_sample_pixels`): a camera
+    pixel straddling the sample's edge mixes in whatever lies beyond it."""
     hh, ww = (size, size) if isinstance(size, int) else size
     a = np.asarray(image, np.float32)
     if a.ndim == 2:
         a = a[..., None]
     x, y, inside = project(pixel_positions(hh, ww), camera, target, up, fov, a.shape[:2])
     out = bilinear(a.astype(np.float64), x, y).astype(np.float32)
+    if sample_only:
+        clean = on_sample_pixels(camera, target, up, fov, a.shape[:2]).astype(np.float64)[..., None]
+        inside &= bilinear(clean, x, y)[..., 0] >= 1.0 - 1e-9
     return out, inside.astype(np.float32)
 
 
-__all__ = ["bilinear", "camera_frame", "project", "rectify"]
+__all__ = ["bilinear", "camera_frame", "on_sample_pixels", "project", "rectify"]
