@@ -109,6 +109,7 @@ def config_sections() -> list[tuple[str, str, type, object]]:
     from .data import config as data
     from .envfit import EnvFitConfig
     from .estimate.fivelight import FiveLightConfig
+    from .estimate.multiview import MultiViewConfig
     from .estimate.flashfit import FlashFitConfig
     from .estimate.photometric import PhotometricConfig
     from .estimate.pipeline import EstimateConfig
@@ -143,6 +144,7 @@ def config_sections() -> list[tuple[str, str, type, object]]:
         ("test-time refinement (RefineConfig)", "", RefineConfig, None),
         ("`ebr estimate --lights` (FiveLightConfig)", "", FiveLightConfig, None),
         ("the photometric fit of `--lights` (PhotometricConfig)", "", PhotometricConfig, None),
+        ("`ebr estimate --views` (MultiViewConfig)", "", MultiViewConfig, None),
         ("`ebr insert` (InsertConfig)", "", InsertConfig, None),
         ("`ebr demo` (DemoConfig)", "", DemoConfig, None),
         ("`ebr render` (RenderConfig)", "", RenderConfig, None),

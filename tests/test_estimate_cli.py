@@ -1,7 +1,8 @@
-"""``ebr estimate``'s flags are generated from EstimateConfig, RefineConfig and FiveLightConfig: the
-defaults ``--help`` shows and the parser holds are the fields' defaults, and the configs built
-from the flags are the configs' own (no default restated in the command). Nothing is estimated
-here: these tests only parse."""
+"""``ebr estimate``'s flags are generated from EstimateConfig, RefineConfig, FiveLightConfig and
+MultiViewConfig: the defaults ``--help`` shows and the parser holds are the fields' defaults (a flag
+two configs share shows the first one's help), and the configs built from the flags are the
+configs' own (no default restated in the command). Nothing is estimated here: these tests only
+parse."""
 
 from __future__ import annotations
 
@@ -15,10 +16,16 @@ from ebr_mitsuba import typedconfig as tc
 from ebr_mitsuba.cli import main
 from ebr_mitsuba.commands import estimate as cmd
 from ebr_mitsuba.estimate.fivelight import FIVELIGHT_FLAGS, FiveLightConfig
+from ebr_mitsuba.estimate.multiview import MULTIVIEW_FLAGS, MultiViewConfig
 from ebr_mitsuba.estimate.pipeline import ESTIMATE_FLAGS, EstimateConfig
 from ebr_mitsuba.estimate.refine import REFINE_FLAGS, RefineConfig
 
-CONFIGS = ((EstimateConfig, ESTIMATE_FLAGS), (RefineConfig, REFINE_FLAGS), (FiveLightConfig, FIVELIGHT_FLAGS))
+CONFIGS = (
+    (EstimateConfig, ESTIMATE_FLAGS),
+    (RefineConfig, REFINE_FLAGS),
+    (FiveLightConfig, FIVELIGHT_FLAGS),
+    (MultiViewConfig, MULTIVIEW_FLAGS),
+)
 NOT_CONFIG = {"--help", "--json", "--variant", "--deterministic"}  # options of the command itself
 
 
@@ -36,6 +43,7 @@ def test_every_option_is_a_config_field_and_every_field_a_flag():
     # every field of EstimateConfig (but the nested RefineConfig) and FiveLightConfig is a flag
     assert set(ESTIMATE_FLAGS) == {f.name for f in dataclasses.fields(EstimateConfig)} - {"refine"}
     assert set(FIVELIGHT_FLAGS) == {f.name for f in dataclasses.fields(FiveLightConfig)}
+    assert set(MULTIVIEW_FLAGS) == {f.name for f in dataclasses.fields(MultiViewConfig)}
 
 
 def test_help_and_parser_defaults_are_the_config_defaults():
@@ -44,18 +52,21 @@ def test_help_and_parser_defaults_are_the_config_defaults():
     parser = subparser("estimate")
     args = parser.parse_args(["--out", "o"])
     entries = help_entries(parser)
-    checked = 0
+    checked, seen = 0, set()
     for cls, names in CONFIGS:
         for name in names:
             f = _field(cls, name)
             flag, dest = tc.flag_name(cls, name), tc.flag_dest(cls, name)
             assert flag in entries, (cls.__name__, flag)
-            if f.default is dataclasses.MISSING:  # flash, out, lights: no default
+            if f.default is dataclasses.MISSING:  # flash, out, lights, views: no default
                 assert parser.get_default(dest) is None, flag
                 assert not re.search(r"\[[^\]]*\]$", entries[flag]), (flag, entries[flag])
                 continue
             assert parser.get_default(dest) == f.default, (cls.__name__, name)
             assert getattr(args, dest) == f.default, (cls.__name__, name)
+            if flag in seen and cls is MultiViewConfig:  # a shared flag: the help of the first config
+                continue
+            seen.add(flag)
             shown = re.search(r"\[([^\]]*)\]$", entries[flag])
             assert shown, (flag, entries[flag])
             expected = tc.default_text(f)
@@ -77,6 +88,9 @@ def test_configs_from_the_flags_are_the_config_defaults():
     args = parser.parse_args(["--lights", "a", "b", "c", "d", "e", "--out", "o"])
     assert cmd.fivelight_config(args) == FiveLightConfig(lights=("a", "b", "c", "d", "e"), out="o")
     cmd.check_light_flags(args)  # the defaults of the flash/no-flash options count as not given
+    args = parser.parse_args(["--views", "d", "--out", "o"])
+    assert cmd.multiview_config(args) == MultiViewConfig(views="d", out="o")
+    assert cmd.check_view_flags(args) == MultiViewConfig(views="d", out="o")
 
 
 def test_flags_set_the_fields():
@@ -112,6 +126,11 @@ def test_flags_set_the_fields():
     args = parser.parse_args(["--lights", "d", "--out", "o", "--flash-intensity", "40", "--max-size", "256"])
     assert cmd.fivelight_config(args) == FiveLightConfig(
         lights=("d",), out="o", light_intensity=40.0, max_size=256
+    )
+    argv = ["--views", "d", "--out", "o", "--flash-intensity", "40", "--max-size", "256"]
+    argv += ["--checkpoint", "m.pt", "--saturation-level", "0.9"]
+    assert cmd.multiview_config(parser.parse_args(argv)) == MultiViewConfig(
+        views="d", out="o", checkpoint="m.pt", flash_intensity=40.0, saturation_level=0.9, max_size=256
     )
 
 
@@ -157,3 +176,24 @@ def test_required_out_is_an_argparse_error():
     with pytest.raises(SystemExit) as exc:
         subparser("estimate").parse_args(["--flash", "f.exr"])
     assert exc.value.code == 2
+
+
+@pytest.mark.parametrize(
+    "extra, needle",
+    [
+        (["--refine-basis", "2"], "--refine-basis does not apply to --views"),
+        (["--max-shift", "0.1"], "--max-shift does not apply to --views"),
+        (["--no-flash-fit"], "--no-flash-fit does not apply to --views"),
+        (["--lights", "a"], "--views and --lights are two captures"),
+        (["--flash", "f.exr"], "--views and --flash are two captures"),
+    ],
+)
+def test_other_options_are_refused_with_views(tmp_path, capsys, extra, needle):
+    out = tmp_path / "out"
+    code = main(["estimate", "--views", str(tmp_path), "--out", str(out), *extra])
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 2 and len(lines) == 1 and needle in lines[0], lines
+    assert not out.exists()
+    # an option given at its default value is not refused
+    args = subparser("estimate").parse_args(["--views", "d", "--out", "o", "--fov", "45"])
+    cmd.check_view_flags(args)
