@@ -132,6 +132,23 @@ def test_the_network_sees_the_rectified_views(model, capture_mv, tmp_path):
     assert summary["flash"]["view00_flash"] == {"intensity": 20.0, "source": "--flash-intensity"}
 
 
+def test_views_above_the_model_grid(model, tmp_path, capsys):
+    """A 64² capture with the 32² model: the network sees the views area-averaged to its grid, the
+    maps and re-renders are at 64², the lighting stays at the grid."""
+    cap = tmp_path / "cap64"
+    argv = ["capture", "--material", "procedural:plaster:2", "--env", "procedural:1", "--setup"]
+    argv += ["multi-view", "--res", "64", "--spp", "1", "--out", str(cap)]
+    assert main(argv) == 0
+    out = tmp_path / "est"
+    code, summary, err = _estimate(capsys, "--views", cap, "--checkpoint", model, "--out", out)
+    assert code == 0, err
+    assert summary["resolution"] == 64 and summary["model_grid"] == 32
+    assert summary["lighting"]["grid"] == [32, 32]
+    assert read_exr(out / "maps" / "diffuse.exr").shape == (64, 64, 3)
+    assert read_exr(out / "rerender" / "view00_flash.exr").shape == (64, 64, 3)
+    assert read_exr(out / "lighting" / "lobes.exr", multiview.lobe_channels(3)).shape == (32, 32, 24)
+
+
 def test_the_true_maps_re_render_the_capture(tmp_path):
     """Rectification, units and the re-render together: a Mitsuba capture of a uniform material
     under the 9 flashes alone (environment scale 0), estimated as its true maps, re-renders every
