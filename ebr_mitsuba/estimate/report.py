@@ -237,7 +237,9 @@ def render_report(out: Path, summary: dict) -> str:
         checks.append([f"alignment ({k} pair)", f"dx {dx:+.1f}, dy {dy:+.1f} px"])
     hl = inp["highlight"] or {"position": None, "fit_r2": 0.0}
     pos, r2 = hl["position"], hl["fit_r2"]
-    if inp["highlight"] is None:
+    if inp["highlight"] is None and "views" in inp:
+        verdict = "not checked (a multi-view capture: nine flashes at known positions)"
+    elif inp["highlight"] is None:
         verdict = "not checked (no light at the camera)"
     elif r2 < HIGHLIGHT_MIN_R2:
         verdict = f"not measurable: the texture dominates the flash falloff (fit R² {r2:.2f})"
