@@ -35,10 +35,11 @@ more than half of the pixels saturated, a checkpoint of another kind, no checkpo
 
 **Rectification** (:mod:`.rectify`): each view is resampled onto the sample grid of
 ``docs/conventions.md`` by projecting the grid's surface points into its camera; the points a
-camera did not frame get in-frame weight 0 (the network ignores them, the errors leave them
-out). The working size follows :func:`.resample.working_size`; the network runs at its grid G
-(rectified views area-averaged to it; a pixel counts as in frame there when all of it was), its
-maps are area-resampled to the working size, its per-pixel lighting stays at G.
+camera did not frame, or saw only through pixels straddling the sample's edge, get in-frame
+weight 0 (the network sees each view times its weight, the errors leave them out). The working
+size follows :func:`.resample.working_size`; the network runs at its grid G (rectified views
+area-averaged to it; a pixel counts as in frame there when all of it was), its maps are
+area-resampled to the working size, its per-pixel lighting stays at G.
 
 **Exposure and units.** The network saw the views at the *reference exposure* (each flash at
 :data:`~ebr_mitsuba.geometry.DEFAULT_FLASH_INTENSITY`). When the flash intensities in photo units
