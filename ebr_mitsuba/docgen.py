@@ -109,8 +109,8 @@ def config_sections() -> list[tuple[str, str, type, object]]:
     from .data import config as data
     from .envfit import EnvFitConfig
     from .estimate.fivelight import FiveLightConfig
-    from .estimate.multiview import MultiViewConfig
     from .estimate.flashfit import FlashFitConfig
+    from .estimate.multiview import MultiViewConfig
     from .estimate.photometric import PhotometricConfig
     from .estimate.pipeline import EstimateConfig
     from .estimate.refine import RefineConfig
