@@ -94,7 +94,15 @@ from .inputs import (
     read_shot,
     saturation_mask,
 )
-from .resample import DEFAULT_MAX_SIZE, MIN_INPUT_SIZE, model_grid, working_size
+from .options import (
+    checkpoint_option,
+    flash_fit_option,
+    intensity_option,
+    max_size_option,
+    out_option,
+    saturation_option,
+)
+from .resample import MIN_INPUT_SIZE, model_grid, working_size
 
 LIGHT_COUNT = 5
 LIGHT_NAMES = tuple(f"light{k}" for k in range(LIGHT_COUNT))
@@ -121,34 +129,16 @@ class FiveLightConfig:
         metavar="L",
         nargs="+",
     )
-    out: str = option(
-        meaning="output directory (complete or not at all)", required=True, flag="--out", metavar="DIR"
+    out: str = out_option()
+    checkpoint: str | None = checkpoint_option("dual-loss model checkpoint", "the shipped model")
+    light_intensity: float | None = intensity_option(
+        "the intensity of every light in W/sr at the photos' exposure"
     )
-    checkpoint: str | None = option(
-        None, "dual-loss model checkpoint", flag="--checkpoint", metavar="C", shown="the shipped model"
-    )
-    light_intensity: float | None = option(
-        None,
-        "the intensity of every light in W/sr at the photos' exposure",
-        above=0,
-        flag="--flash-intensity",
-        metavar="I",
-        shown="capture.json, else fitted",
-    )
-    saturation_level: float | None = option(
-        None, "EXR value at which pixels count as clipped", above=0, flag="--saturation-level", metavar="V"
-    )
-    max_size: int = option(
-        DEFAULT_MAX_SIZE,
-        "largest working size (at least the model grid): larger photos are downsampled to it",
-        flag="--max-size",
-        metavar="N",
-    )
-    flash_fit: bool = option(
-        True,
+    saturation_level: float | None = saturation_option()
+    max_size: int = max_size_option("larger photos are downsampled to it")
+    flash_fit: bool = flash_fit_option(
         "normals and albedo by photometric stereo, roughness and specular from the light at the "
-        "camera (estimate/photometric.py); --no-flash-fit keeps the network's maps",
-        flag="--flash-fit",
+        "camera (estimate/photometric.py); --no-flash-fit keeps the network's maps"
     )
 
 

@@ -94,8 +94,9 @@ from ..metrics import image_errors
 from ..typedconfig import config, option
 from . import outputs
 from .inputs import MAX_SATURATED, WARN_SATURATED, clip_negatives, read_shot, saturation_mask
+from .options import checkpoint_option, intensity_option, max_size_option, out_option, saturation_option
 from .rectify import rectify
-from .resample import DEFAULT_MAX_SIZE, MIN_INPUT_SIZE, working_size
+from .resample import MIN_INPUT_SIZE, working_size
 
 VIEW_COUNT = 9
 SETUP = "multi-view"
@@ -125,33 +126,15 @@ class MultiViewConfig:
         flag="--views",
         metavar="DIR",
     )
-    out: str = option(
-        meaning="output directory (complete or not at all)", required=True, flag="--out", metavar="DIR"
+    out: str = out_option()
+    checkpoint: str | None = checkpoint_option(
+        'MAIR model checkpoint (ebr train, kind = "mair")', "none shipped: required"
     )
-    checkpoint: str | None = option(
-        None,
-        'MAIR model checkpoint (ebr train, kind = "mair")',
-        flag="--checkpoint",
-        metavar="C",
-        shown="none shipped: required",
+    flash_intensity: float | None = intensity_option(
+        "every view's flash intensity in W/sr at the views' exposure"
     )
-    flash_intensity: float | None = option(
-        None,
-        "every view's flash intensity in W/sr at the views' exposure",
-        above=0,
-        flag="--flash-intensity",
-        metavar="I",
-        shown="capture.json, else fitted",
-    )
-    saturation_level: float | None = option(
-        None, "EXR value at which pixels count as clipped", above=0, flag="--saturation-level", metavar="V"
-    )
-    max_size: int = option(
-        DEFAULT_MAX_SIZE,
-        "largest working size (at least the model grid): larger views are rectified to it",
-        flag="--max-size",
-        metavar="N",
-    )
+    saturation_level: float | None = saturation_option()
+    max_size: int = max_size_option("larger views are rectified to it")
 
 
 MULTIVIEW_FLAGS = tuple(f.name for f in dataclasses.fields(MultiViewConfig))  # all set by flags

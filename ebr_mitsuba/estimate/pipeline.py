@@ -71,8 +71,16 @@ from ..typedconfig import config, option
 from . import outputs
 from .fullres import release_memory
 from .inputs import DEFAULT_FOV, DEFAULT_MAX_SHIFT, MAX_FOV, MIN_FOV, Inputs, load_inputs
+from .options import (
+    checkpoint_option,
+    flash_fit_option,
+    intensity_option,
+    max_size_option,
+    out_option,
+    saturation_option,
+)
 from .refine import RefineConfig, ShotTarget, fit_flash_intensity, refine, rerender_errors
-from .resample import DEFAULT_MAX_SIZE, working_size
+from .resample import working_size
 
 ESTIMATE_FORMAT = "ebr-estimate/1"
 
@@ -86,17 +94,13 @@ class EstimateConfig:
     flash: str = option(
         meaning="photo with the flash (EXR, PNG, JPEG); or --lights", flag="--flash", metavar="F"
     )
-    out: str = option(
-        meaning="output directory (complete or not at all)", required=True, flag="--out", metavar="DIR"
-    )
+    out: str = out_option()
     noflash: str | None = option(
         None, "photo without the flash (none: a flash-only capture)", flag="--noflash", metavar="NF"
     )
     far_flash: str | None = option(None, "far shot with the flash", flag="--far-flash", metavar="F2")
     far_noflash: str | None = option(None, "far shot without the flash", flag="--far-noflash", metavar="NF2")
-    checkpoint: str | None = option(
-        None, "model checkpoint", flag="--checkpoint", metavar="C", shown="the shipped model"
-    )
+    checkpoint: str | None = checkpoint_option("model checkpoint", "the shipped model")
     refine: RefineConfig = option(RefineConfig(), "test-time refinement (RefineConfig; its --refine-* flags)")
     exposure_ratio: float | None = option(
         None,
@@ -123,28 +127,14 @@ class EstimateConfig:
         flag="--max-shift",
         metavar="F",
     )
-    saturation_level: float | None = option(
-        None, "EXR value at which pixels count as clipped", above=0, flag="--saturation-level", metavar="V"
+    saturation_level: float | None = saturation_option()
+    flash_intensity: float | None = intensity_option(
+        "flash intensity in W/sr at the flash shot's exposure (--lights: each light's)"
     )
-    flash_intensity: float | None = option(
-        None,
-        "flash intensity in W/sr at the flash shot's exposure (--lights: each light's)",
-        above=0,
-        flag="--flash-intensity",
-        metavar="I",
-        shown="capture.json, else fitted",
-    )
-    max_size: int = option(
-        DEFAULT_MAX_SIZE,
-        "largest working size (at least the model grid): larger photos are downsampled to it, with a warning",
-        flag="--max-size",
-        metavar="N",
-    )
-    flash_fit: bool = option(
-        True,
+    max_size: int = max_size_option("larger photos are downsampled to it, with a warning")
+    flash_fit: bool = flash_fit_option(
         "diffuse, specular and roughness from the flash-profile fit (estimate/flashfit.py); "
-        "--no-flash-fit keeps the network's maps",
-        flag="--flash-fit",
+        "--no-flash-fit keeps the network's maps"
     )
 
 
