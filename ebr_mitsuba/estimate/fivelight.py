@@ -525,19 +525,12 @@ def run_fivelight(
 
     ``log(msg)``: stage messages (stderr in the command). ``bundle``: the dual-loss model already
     loaded (None: from ``cfg.checkpoint``, else the shipped one)."""
-    from .pipeline import ESTIMATE_FORMAT, check_out_dir
+    from .pipeline import ESTIMATE_FORMAT
     from .refine import ShotTarget, rerender_errors
 
     log = log or (lambda msg: None)
-    timings: dict[str, float] = {}
-    t_start = time.perf_counter()
-
-    def stage(name, t0):
-        timings[name] = round(time.perf_counter() - t0, 3)
-
-    out = Path(cfg.out)
-    t0 = time.perf_counter()
-    check_out_dir(out)
+    stage = outputs.Stages(cfg.out)  # the clock; --out checked
+    out, timings, t0 = stage.out, stage.timings, stage.t_start
     path = model_path(cfg.checkpoint) if bundle is None else None
     setup, warnings = resolve_lights(cfg.lights)
     photos = load_photos(setup, cfg.saturation_level, warnings)
@@ -659,7 +652,7 @@ def run_fivelight(
         reference = intensities[setup.shots[0].name][0]
         files += outputs.write_novel(maps, None, reference, tmp, float(setup.shots[0].camera[2]))
         stage("outputs", t0)
-        outputs.write_report_and_summary(tmp, summary, files, t_start, stage)
+        outputs.write_report_and_summary(tmp, summary, files, stage)
     return summary
 
 

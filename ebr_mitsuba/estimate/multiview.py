@@ -571,18 +571,11 @@ def run_multiview(
     progress bar (stderr); ``predictor``: a :class:`~ebr_mitsuba.model.predictor.ViewsPredictor`
     already loaded (None: ``cfg.checkpoint``)."""
     from ..model.predictor import ViewsPredictor
-    from .pipeline import ESTIMATE_FORMAT, check_out_dir
+    from .pipeline import ESTIMATE_FORMAT
 
     log = log or (lambda msg: None)
-    timings: dict[str, float] = {}
-    t_start = time.perf_counter()
-
-    def stage(name, t0):
-        timings[name] = round(time.perf_counter() - t0, 3)
-
-    out = Path(cfg.out)
-    t0 = time.perf_counter()
-    check_out_dir(out)
+    stage = outputs.Stages(cfg.out)  # the clock; --out checked
+    out, timings, t0 = stage.out, stage.timings, stage.t_start
     path = model_path(cfg.checkpoint) if predictor is None else None
     shots, warnings = resolve_views(cfg.views)
     camera_views = read_views(shots, cfg.saturation_level, warnings)
@@ -737,7 +730,7 @@ def run_multiview(
             )
             stage("outputs", t0)
             tick("outputs")
-            outputs.write_report_and_summary(tmp, summary, files, t_start, stage)
+            outputs.write_report_and_summary(tmp, summary, files, stage)
             tick("report")
     finally:
         if progress is not None:

@@ -36,10 +36,12 @@ level 1 (15–30 % larger, a third of the time).
 from __future__ import annotations
 
 import math
+import time
 from pathlib import Path
 
 import numpy as np
 
+from ..errors import InputError
 from ..geometry import NEAR_DISTANCE, Shot
 from ..imageio import fast_writes, write_exr, write_png
 from ..materials import save_material_dir
@@ -248,12 +250,40 @@ def write_exemplars(out: Path, prediction) -> list[str]:
     return files
 
 
-def write_report_and_summary(out: Path, summary: dict, files: list[str], t_start: float, stage) -> None:
+def check_out_dir(out: Path) -> None:
+    """Refuse to replace anything but an earlier estimate directory (or an empty directory)."""
+    if not out.exists():
+        return
+    if not out.is_dir():
+        raise InputError(f"--out {out}: exists and is not a directory; choose another --out")
+    if any(out.iterdir()) and not (out / "estimate.json").is_file():
+        raise InputError(
+            f"--out {out}: exists and is not an estimate directory (no estimate.json); "
+            f"choose a new --out or remove it"
+        )
+
+
+class Stages:
+    """The clock of one estimate run, started first thing: ``stage(name, t0)`` records how long the
+    stage begun at ``t0`` (``time.perf_counter``) took in ``timings`` (``estimate.json``'s
+    ``timings``), ``t_start`` is when the run began (its ``total_seconds``). Starting it checks the
+    output directory ``out`` (:func:`check_out_dir`), the first step of the inputs stage."""
+
+    def __init__(self, out: str | Path) -> None:
+        self.t_start = time.perf_counter()
+        self.timings: dict[str, float] = {}
+        self.out = Path(out)
+        check_out_dir(self.out)
+
+    def __call__(self, name: str, t0: float) -> None:
+        self.timings[name] = round(time.perf_counter() - t0, 3)
+
+
+def write_report_and_summary(out: Path, summary: dict, files: list[str], stage: Stages) -> None:
     """Last in every estimate directory: ``report.html`` and ``estimate.json`` (which list every
     file, so they come after the others); ``stage("report", t0)`` times the report and
-    ``summary["total_seconds"]`` is set from ``t_start`` (``time.perf_counter``)."""
+    ``summary["total_seconds"]`` is set from ``stage.t_start``."""
     import json
-    import time
 
     from .report import write_report
 
@@ -261,11 +291,13 @@ def write_report_and_summary(out: Path, summary: dict, files: list[str], t_start
     summary["files"] = sorted(files) + ["estimate.json", "report.html"]
     write_report(out, summary)
     stage("report", t0)
-    summary["total_seconds"] = round(time.perf_counter() - t_start, 3)
+    summary["total_seconds"] = round(time.perf_counter() - stage.t_start, 3)
     (out / "estimate.json").write_text(json.dumps(summary, indent=1, default=float) + "\n")
 
 
 __all__ = [
+    "Stages",
+    "check_out_dir",
     "write_report_and_summary",
     "NOVEL_LIGHTS",
     "PREVIEW_SIZE",

@@ -79,6 +79,7 @@ from .options import (
     out_option,
     saturation_option,
 )
+from .outputs import check_out_dir
 from .refine import RefineConfig, ShotTarget, fit_flash_intensity, refine, rerender_errors
 from .resample import working_size
 
@@ -161,19 +162,6 @@ def load_predictor(checkpoint: str | None) -> Predictor:
     from ..model.predict import load_predictor as load
 
     return load(checkpoint)
-
-
-def check_out_dir(out: Path) -> None:
-    """Refuse to replace anything but an earlier estimate directory (or an empty directory)."""
-    if not out.exists():
-        return
-    if not out.is_dir():
-        raise InputError(f"--out {out}: exists and is not a directory; choose another --out")
-    if any(out.iterdir()) and not (out / "estimate.json").is_file():
-        raise InputError(
-            f"--out {out}: exists and is not an estimate directory (no estimate.json); "
-            f"choose a new --out or remove it"
-        )
 
 
 def near_distance(fov: float) -> float:
@@ -389,15 +377,8 @@ def run_estimate(
     several captures load it once); None: :func:`load_predictor` of ``cfg.checkpoint``.
     """
     log = log or (lambda msg: None)
-    timings: dict[str, float] = {}
-    t_start = time.perf_counter()
-
-    def stage(name, t0):
-        timings[name] = round(time.perf_counter() - t0, 3)
-
-    out = Path(cfg.out)
-    t0 = time.perf_counter()
-    check_out_dir(out)
+    stage = outputs.Stages(cfg.out)  # the clock; --out checked
+    out, timings, t0 = stage.out, stage.timings, stage.t_start
     # Reading and loading the model can still refuse the inputs (one line, nothing before it): their
     # bars appear only when the stage takes more than a second.
     with _Steps(bar, "inputs", unit="file", delay=0.5) as steps:
@@ -646,7 +627,7 @@ def run_estimate(
         workers = PARALLEL_WRITERS if work * work >= PARALLEL_WRITE_PIXELS else 1
         files += run_jobs(jobs, local, workers, steps)
         stage("outputs", t0)
-        outputs.write_report_and_summary(tmp, summary, files, t_start, stage)
+        outputs.write_report_and_summary(tmp, summary, files, stage)
     return EstimateResult(summary, final_maps, maps, final_env)
 
 
