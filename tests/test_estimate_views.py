@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cli_run import estimate_json, nonblank_lines
 
 from ebr_mitsuba.cli import main
 from ebr_mitsuba.estimate import multiview
@@ -43,19 +44,9 @@ def capture_mv(tmp_path_factory) -> Path:
     return out
 
 
-def _estimate(capsys, *args) -> tuple[int, dict | None, str]:
-    code = main(["estimate", *map(str, args), "--json"])
-    captured = capsys.readouterr()
-    return code, (json.loads(captured.out) if code == 0 else None), captured.err
-
-
-def _lines(err: str) -> list[str]:
-    return [line for line in err.splitlines() if line.strip()]
-
-
 def test_estimate_views_writes_every_output(model, capture_mv, tmp_path, capsys):
     out = tmp_path / "est"
-    code, summary, err = _estimate(capsys, "--views", capture_mv, "--checkpoint", model, "--out", out)
+    code, summary, err = estimate_json(capsys, "--views", capture_mv, "--checkpoint", model, "--out", out)
     assert code == 0, err
     assert summary["capture"] == "multi-view" and summary["model"]["kind"] == "mair"
     assert summary["model_grid"] == 32 and summary["resolution"] == 32 and summary["lobes"] == 3
@@ -140,7 +131,7 @@ def test_views_above_the_model_grid(model, tmp_path, capsys):
     argv += ["multi-view", "--res", "64", "--spp", "1", "--out", str(cap)]
     assert main(argv) == 0
     out = tmp_path / "est"
-    code, summary, err = _estimate(capsys, "--views", cap, "--checkpoint", model, "--out", out)
+    code, summary, err = estimate_json(capsys, "--views", cap, "--checkpoint", model, "--out", out)
     assert code == 0, err
     assert summary["resolution"] == 64 and summary["model_grid"] == 32
     assert summary["lighting"]["grid"] == [32, 32]
@@ -236,9 +227,9 @@ def _bad_captures(capture_mv: Path, tmp: Path) -> dict:
 def test_bad_views_exit_2_with_one_line(model, capture_mv, tmp_path, capsys):
     for name, (views, text) in _bad_captures(capture_mv, tmp_path / "in").items():
         out = tmp_path / "out" / name.replace(" ", "_")
-        code, _, err = _estimate(capsys, "--views", views, "--checkpoint", model, "--out", out)
+        code, _, err = estimate_json(capsys, "--views", views, "--checkpoint", model, "--out", out)
         assert code == 2, (name, err)
-        lines = _lines(err)
+        lines = nonblank_lines(err)
         assert len(lines) == 1 and text in lines[0], (name, err)
         assert not out.exists(), name
     leftovers = list((tmp_path / "out").iterdir()) if (tmp_path / "out").exists() else []
@@ -266,13 +257,15 @@ def test_model_and_flag_errors(model, capture_mv, tmp_path, capsys):
     cases.append((["--checkpoint", model, "--refine-steps", "5"], "--refine-steps does not apply to --views"))
     cases.append((["--checkpoint", model, "--fov", "50"], "--fov does not apply to --views"))
     for extra, text in cases:
-        code, _, err = _estimate(capsys, "--views", capture_mv, *extra, "--out", out)
-        lines = _lines(err)
+        code, _, err = estimate_json(capsys, "--views", capture_mv, *extra, "--out", out)
+        lines = nonblank_lines(err)
         assert code == 2 and len(lines) == 1 and text in lines[0], (extra, err)
         assert not out.exists(), extra
-    code, _, err = _estimate(capsys, "--views", capture_mv, "--checkpoint", model, "--out", capture_mv / "e")
+    code, _, err = estimate_json(
+        capsys, "--views", capture_mv, "--checkpoint", model, "--out", capture_mv / "e"
+    )
     assert code == 2 and "overlap" in err
     # the flash / no-flash estimate refuses a mair checkpoint with one line
-    code, _, err = _estimate(capsys, "--flash", flash, "--checkpoint", model, "--out", out)
-    assert code == 2 and len(_lines(err)) == 1 and "a 'mair' checkpoint" in err
+    code, _, err = estimate_json(capsys, "--flash", flash, "--checkpoint", model, "--out", out)
+    assert code == 2 and len(nonblank_lines(err)) == 1 and "a 'mair' checkpoint" in err
     assert not out.exists()

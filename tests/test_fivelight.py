@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from cli_run import estimate_json, nonblank_lines
 
 from ebr_mitsuba.cli import main
 from ebr_mitsuba.errors import ConfigError
@@ -64,16 +65,6 @@ def capture5(tmp_path_factory) -> Path:
     )
     assert code == 0
     return out
-
-
-def _estimate(capsys, *args) -> tuple[int, dict | None, str]:
-    code = main(["estimate", *map(str, args), "--json"])
-    captured = capsys.readouterr()
-    return code, (json.loads(captured.out) if code == 0 else None), captured.err
-
-
-def _lines(err: str) -> list[str]:
-    return [line for line in err.splitlines() if line.strip()]
 
 
 def _net_maps(model: Path, photos: list[np.ndarray]):
@@ -167,7 +158,7 @@ def _estimate_sample(capsys, model, data: Path, out: Path, *extra):
     × exposure, as capture.json would state it)."""
     photos = data / "samples" / "000000" / "photos"
     intensity = 10.0 * _exposure(data)
-    return _estimate(
+    return estimate_json(
         capsys,
         "--lights",
         photos,
@@ -253,7 +244,7 @@ def test_estimate_lights_on_a_capture(dl_model, capture5, tmp_path, capsys):
     """An `ebr capture --setup five-light` directory; its five files in another order; the same
     photos brighter with a proportionally stronger light (the same maps: the reference exposure);
     the photos away from capture.json (default geometry, fitted intensity)."""
-    code, by_dir, err = _estimate(
+    code, by_dir, err = estimate_json(
         capsys, "--lights", capture5, "--checkpoint", dl_model, "--out", tmp_path / "a"
     )
     assert code == 0, err
@@ -263,7 +254,7 @@ def test_estimate_lights_on_a_capture(dl_model, capture5, tmp_path, capsys):
     diffuse = read_exr(tmp_path / "a" / "maps" / "diffuse.exr")
 
     files = [capture5 / f"light{k}.exr" for k in (3, 0, 4, 1, 2)]
-    code, shuffled, err = _estimate(
+    code, shuffled, err = estimate_json(
         capsys, "--lights", *files, "--checkpoint", dl_model, "--out", tmp_path / "b"
     )
     assert code == 0, err
@@ -275,7 +266,7 @@ def test_estimate_lights_on_a_capture(dl_model, capture5, tmp_path, capsys):
     bright.mkdir()
     for k in range(5):
         write_exr(bright / f"light{k}.exr", 4.0 * read_exr(capture5 / f"light{k}.exr"))
-    code, scaled, err = _estimate(
+    code, scaled, err = estimate_json(
         capsys, "--lights", bright, "--checkpoint", dl_model, "--flash-intensity", 40, "--out", tmp_path / "c"
     )
     assert code == 0, err
@@ -285,7 +276,7 @@ def test_estimate_lights_on_a_capture(dl_model, capture5, tmp_path, capsys):
         4.0 * by_dir["rerender_error"]["network"]["mean"]["rmse"], rel=1e-3
     )
 
-    code, fitted, err = _estimate(
+    code, fitted, err = estimate_json(
         capsys, "--lights", bright, "--checkpoint", dl_model, "--out", tmp_path / "d"
     )
     assert code == 0, err
@@ -347,9 +338,9 @@ def test_estimate_lights_bad_input_exits_2_with_one_line(dl_model, capture5, tmp
     cases = _bad_setups(capture5, tmp_path / "in")
     for name, (lights, text) in cases.items():
         out = tmp_path / "out" / name.replace(" ", "_")
-        code, _, err = _estimate(capsys, "--lights", *lights, "--checkpoint", dl_model, "--out", out)
+        code, _, err = estimate_json(capsys, "--lights", *lights, "--checkpoint", dl_model, "--out", out)
         assert code == 2, (name, err)
-        lines = _lines(err)
+        lines = nonblank_lines(err)
         assert len(lines) == 1 and text in lines[0], (name, err)
         assert not out.exists(), name
     leftovers = list((tmp_path / "out").iterdir()) if (tmp_path / "out").exists() else []
@@ -360,23 +351,27 @@ def test_estimate_lights_model_and_flag_errors(dl_model, capture5, tmp_path, cap
     out = tmp_path / "out"
     # no --checkpoint and no shipped dual-loss model
     monkeypatch.setattr(fivelight, "shipped_model_path", lambda: tmp_path / "none.pt")
-    code, _, err = _estimate(capsys, "--lights", capture5, "--out", out)
-    assert code == 2 and len(_lines(err)) == 1 and "pass --checkpoint" in err
+    code, _, err = estimate_json(capsys, "--lights", capture5, "--out", out)
+    assert code == 2 and len(nonblank_lines(err)) == 1 and "pass --checkpoint" in err
     # a checkpoint of another kind
     other = torch.load(dl_model, weights_only=True)
     other["kind"] = "ebrenv"
     torch.save(other, tmp_path / "ebrenv.pt")
-    code, _, err = _estimate(
+    code, _, err = estimate_json(
         capsys, "--lights", capture5, "--checkpoint", tmp_path / "ebrenv.pt", "--out", out
     )
-    assert code == 2 and len(_lines(err)) == 1 and "wrong kind" in err and "ebrenv.pt" in err
+    assert code == 2 and len(nonblank_lines(err)) == 1 and "wrong kind" in err and "ebrenv.pt" in err
     # options of the flash/no-flash estimate
     for extra in (["--noflash", capture5 / "light0.exr"], ["--refine-steps", "5"], ["--fov", "50"]):
-        code, _, err = _estimate(capsys, "--lights", capture5, "--checkpoint", dl_model, *extra, "--out", out)
+        code, _, err = estimate_json(
+            capsys, "--lights", capture5, "--checkpoint", dl_model, *extra, "--out", out
+        )
         assert code == 2 and f"{extra[0]} does not apply to --lights" in err, extra
-    code, _, err = _estimate(capsys, "--lights", capture5, "--checkpoint", dl_model, "--out", capture5.parent)
+    code, _, err = estimate_json(
+        capsys, "--lights", capture5, "--checkpoint", dl_model, "--out", capture5.parent
+    )
     assert code == 2 and "contains the input" in err
-    code, _, err = _estimate(capsys, "--out", out)
+    code, _, err = estimate_json(capsys, "--out", out)
     assert code == 2 and "--flash F" in err and "--lights" in err
     assert not out.exists()
 
@@ -386,7 +381,7 @@ def test_the_shipped_model_estimates_a_capture(capture5, tmp_path, capsys):
     without --checkpoint: a missing file is a failure here, not a skip."""
     assert fivelight.shipped_model_path().is_file()
     out = tmp_path / "est"
-    code, summary, err = _estimate(capsys, "--lights", capture5, "--out", out)
+    code, summary, err = estimate_json(capsys, "--lights", capture5, "--out", out)
     assert code == 0, err
     assert summary["model"]["checkpoint"].endswith("dualloss_small.pt")
     assert summary["model_grid"] == 128 and summary["flash_fit"] is not None
