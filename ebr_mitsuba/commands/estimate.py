@@ -55,6 +55,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+from collections.abc import Callable
 from pathlib import Path
 
 from ..errors import InputError
@@ -168,13 +169,19 @@ def _changed_flag(cls, args, name: str) -> str | None:
     return "--no-" + flag[2:] if value is False and default is True else flag
 
 
+def _refuse_changed(args, fields, capture: str) -> None:
+    """An :class:`InputError` for the first of ``fields`` ((config class, field name) pairs) whose
+    flag was given another value than its default: it does not apply to ``capture``."""
+    for cls, name in fields:
+        flag = _changed_flag(cls, args, name)
+        if flag is not None:
+            raise InputError(f"{flag} does not apply to {capture}; drop it")
+
+
 def check_light_flags(args) -> FiveLightConfig:
     """``--lights``: the options of the flash/no-flash estimate alone refused, the others checked;
     the :class:`~ebr_mitsuba.estimate.fivelight.FiveLightConfig`."""
-    for cls, name in NOT_FOR_LIGHTS:
-        flag = _changed_flag(cls, args, name)
-        if flag is not None:
-            raise InputError(f"{flag} does not apply to --lights (five known point lights); drop it")
+    _refuse_changed(args, NOT_FOR_LIGHTS, "--lights (five known point lights)")
     cfg = fivelight_config(args)
     out = Path(cfg.out).resolve()
     for p in cfg.lights:
@@ -195,10 +202,7 @@ def check_view_flags(args) -> MultiViewConfig:
         raise InputError("--views and --lights are two captures; give one of them")
     if args.flash is not None:
         raise InputError("--views and --flash are two captures; give one of them")
-    for cls, name in NOT_FOR_VIEWS:
-        flag = _changed_flag(cls, args, name)
-        if flag is not None:
-            raise InputError(f"{flag} does not apply to --views (the 3x3 multi-view capture); drop it")
+    _refuse_changed(args, NOT_FOR_VIEWS, "--views (the 3x3 multi-view capture)")
     cfg = multiview_config(args)
     out, views = Path(cfg.out).resolve(), Path(cfg.views).resolve()
     if out == views or out in views.parents or views in out.parents:
@@ -206,39 +210,38 @@ def check_view_flags(args) -> MultiViewConfig:
     return cfg
 
 
-def run_views(args) -> int:
-    """``ebr estimate --views``: :func:`ebr_mitsuba.estimate.multiview.run_multiview`."""
-    from ..estimate.multiview import run_multiview
+def _write(args, out: str, estimate: Callable[[], dict]) -> int:
+    """``estimate()`` writing ``out`` (one writer per --out: a second one is refused); its summary
+    printed (JSON with --json, else :func:`print_summary`); exit code 0."""
     from ..fsutil import output_lock
 
-    cfg = check_view_flags(args)
-    with output_lock(cfg.out, "ebr estimate"):  # one writer per --out: a second one is refused
-        summary = run_multiview(cfg, log=say, bar=progress)
+    with output_lock(out, "ebr estimate"):
+        summary = estimate()
     if args.json:
         emit_json(summary)
     else:
         print_summary(summary)
     return 0
+
+
+def run_views(args) -> int:
+    """``ebr estimate --views``: :func:`ebr_mitsuba.estimate.multiview.run_multiview`."""
+    from ..estimate.multiview import run_multiview
+
+    cfg = check_view_flags(args)
+    return _write(args, cfg.out, lambda: run_multiview(cfg, log=say, bar=progress))
 
 
 def run_lights(args) -> int:
     """``ebr estimate --lights``: :func:`ebr_mitsuba.estimate.fivelight.run_fivelight`."""
     from ..estimate.fivelight import run_fivelight
-    from ..fsutil import output_lock
 
     cfg = check_light_flags(args)
-    with output_lock(cfg.out, "ebr estimate"):  # one writer per --out: a second one is refused
-        summary = run_fivelight(cfg, log=say)
-    if args.json:
-        emit_json(summary)
-    else:
-        print_summary(summary)
-    return 0
+    return _write(args, cfg.out, lambda: run_fivelight(cfg, log=say))
 
 
 def run(args) -> int:
     from ..estimate.pipeline import run_estimate
-    from ..fsutil import output_lock
 
     if args.views is not None:
         return run_views(args)
@@ -251,13 +254,7 @@ def run(args) -> int:
         )
     cfg = estimate_config(args)
     check_flags(cfg)
-    with output_lock(cfg.out, "ebr estimate"):  # one writer per --out: a second one is refused
-        summary = run_estimate(cfg, log=say, bar=progress)
-    if args.json:
-        emit_json(summary)
-    else:
-        print_summary(summary)
-    return 0
+    return _write(args, cfg.out, lambda: run_estimate(cfg, log=say, bar=progress))
 
 
 def print_summary(summary: dict) -> None:
