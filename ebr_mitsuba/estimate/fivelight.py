@@ -63,7 +63,6 @@ positions more than :data:`POSITION_WARN` from those the model was trained with 
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import time
 from collections.abc import Callable
@@ -83,13 +82,16 @@ from ..svbrdf import SVBRDF
 from ..typedconfig import config, option
 from . import outputs
 from .inputs import (
+    CAPTURE_JSON,
     HIGHLIGHT_MIN_R2,
     HIGHLIGHT_WARN,
     MAX_SATURATED,
     WARN_SATURATED,
+    capture_vector,
     centre_crop,
     clip_negatives,
     highlight_position,
+    read_capture_record,
     read_exif,
     read_shot,
     saturation_mask,
@@ -106,8 +108,6 @@ from .resample import MIN_INPUT_SIZE, model_grid, working_size
 
 LIGHT_COUNT = 5
 LIGHT_NAMES = tuple(f"light{k}" for k in range(LIGHT_COUNT))
-CAPTURE_JSON = "capture.json"
-CAPTURE_FORMAT = "ebr-capture/1"
 SETUP = "five-light"
 SHIPPED_DUALLOSS_MODEL = "dualloss_small.pt"
 POSITION_WARN = 0.05  # world units (the sample is 2 wide) from the training light positions
@@ -221,28 +221,10 @@ def predict(bundle, images: list[np.ndarray]) -> SVBRDF:
 # -- the light geometry ------------------------------------------------------------------------------
 
 
-def _vector(value, where: str) -> tuple[float, float, float]:
-    try:
-        v = tuple(float(c) for c in value)
-    except (TypeError, ValueError):
-        v = ()
-    if len(v) != 3 or not all(math.isfinite(c) for c in v):
-        raise InputError(f"{where}: expected [x, y, z], got {value!r}")
-    return v
-
-
 def read_capture_json(path: Path) -> dict:
     """The ``capture.json`` at ``path`` (an ``ebr capture`` record); :class:`InputError` naming
     it when it is unreadable or foreign."""
-    try:
-        meta = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"{path}: not readable JSON ({str(exc)[:80]}); fix or remove it") from None
-    if not isinstance(meta, dict) or meta.get("format") != CAPTURE_FORMAT:
-        raise InputError(
-            f"{path}: not an 'ebr capture' record (no format '{CAPTURE_FORMAT}'); fix or remove it"
-        )
-    return meta
+    return read_capture_record(path, "fix or remove it", "fix or remove it")
 
 
 def _shots_from_capture(meta: dict, where: Path, folder: Path) -> list[LightShot]:
@@ -261,13 +243,13 @@ def _shots_from_capture(meta: dict, where: Path, folder: Path) -> list[LightShot
                 f"{where}: shot {name} has no light position ('flash': [x, y, z]); add it, or remove "
                 f"{CAPTURE_JSON} to use the default five-light geometry"
             )
-        position = _vector(rec["flash"], f"{where}: shot {name} light position")
+        position = capture_vector(rec["flash"], f"{where}: shot {name} light position")
         if position[2] <= 0:
             raise InputError(
                 f"{where}: shot {name} light position {list(position)} is not above the "
                 f"sample (z must be > 0)"
             )
-        camera = _vector(rec.get("camera", [0.0, 0.0, NEAR_DISTANCE]), f"{where}: shot {name} camera")
+        camera = capture_vector(rec.get("camera", [0.0, 0.0, NEAR_DISTANCE]), f"{where}: shot {name} camera")
         fov = float(rec.get("fov", NEAR_FOV))
         intensity = rec.get("flash_intensity")
         intensity = float(intensity) if isinstance(intensity, (int, float)) else None

@@ -52,6 +52,7 @@ field of view   ``fov`` in [``MIN_FOV``, ``MAX_FOV``] degrees (error outside); m
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -65,6 +66,8 @@ from ..imageio import EXR_SUFFIXES, HDR_SUFFIXES, IMAGE_SUFFIXES, box_mean, read
 from .resample import MIN_INPUT_SIZE
 
 SHOT_NAMES = ("flash", "noflash", "far_flash", "far_noflash")
+CAPTURE_JSON = "capture.json"  # the record 'ebr capture' writes beside its shots
+CAPTURE_FORMAT = "ebr-capture/1"
 DEFAULT_FOV = NEAR_FOV
 MIN_FOV, MAX_FOV, FOV_WARN = 10.0, 120.0, 5.0
 DEFAULT_MAX_SHIFT = 0.02  # fraction of the frame width
@@ -663,7 +666,36 @@ def check_shot_flags(flash, noflash, far_flash, far_noflash, exposure_ratio=None
         raise InputError("the same file is given for two shots; give one file per shot")
 
 
+def read_capture_record(path: Path, unreadable: str, foreign: str) -> dict:
+    """The ``ebr capture`` record (``capture.json``) at ``path``; an :class:`InputError` naming it
+    when it is not readable JSON (advice ``unreadable``) or not such a record (advice ``foreign``)."""
+    try:
+        meta = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"{path}: not readable JSON ({str(exc)[:80]}); {unreadable}") from None
+    if not isinstance(meta, dict) or meta.get("format") != CAPTURE_FORMAT:
+        raise InputError(f"{path}: not an 'ebr capture' record (no format '{CAPTURE_FORMAT}'); {foreign}")
+    return meta
+
+
+def capture_vector(value, where: str, fix: str = "") -> tuple[float, float, float]:
+    """``value`` (a position or direction of a capture record) as three finite floats; an
+    :class:`InputError` at ``where`` otherwise, ending in the advice ``fix`` when given."""
+    try:
+        v = tuple(float(c) for c in value)
+    except (TypeError, ValueError):
+        v = ()
+    if len(v) != 3 or not all(math.isfinite(c) for c in v):
+        advice = f"; {fix}" if fix else ""
+        raise InputError(f"{where}: expected [x, y, z], got {value!r}{advice}")
+    return v
+
+
 __all__ = [
+    "CAPTURE_FORMAT",
+    "CAPTURE_JSON",
+    "capture_vector",
+    "read_capture_record",
     "Inputs",
     "centre_crop",
     "clip_negatives",

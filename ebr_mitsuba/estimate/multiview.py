@@ -80,6 +80,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -93,15 +94,22 @@ from ..materials import resample_svbrdf
 from ..metrics import image_errors
 from ..typedconfig import config, option
 from . import outputs
-from .inputs import MAX_SATURATED, WARN_SATURATED, clip_negatives, read_shot, saturation_mask
+from .inputs import (
+    CAPTURE_JSON,
+    MAX_SATURATED,
+    WARN_SATURATED,
+    capture_vector,
+    clip_negatives,
+    read_capture_record,
+    read_shot,
+    saturation_mask,
+)
 from .options import checkpoint_option, intensity_option, max_size_option, out_option, saturation_option
 from .rectify import rectify
 from .resample import MIN_INPUT_SIZE, working_size
 
 VIEW_COUNT = 9
 SETUP = "multi-view"
-CAPTURE_JSON = "capture.json"
-CAPTURE_FORMAT = "ebr-capture/1"
 POSITION_WARN = 0.05  # world units (the sample is 2 wide) from the training camera positions
 HEMISPHERE_GRID = 4  # lighting/hemispheres.png: the lighting of GRID × GRID pixels
 HEMISPHERE_SIZE = 48
@@ -189,14 +197,7 @@ def load_mair(path: str | Path, device: str = "auto"):
 # -- the capture ------------------------------------------------------------------------------------
 
 
-def _vector(value, where: str) -> tuple[float, float, float]:
-    try:
-        v = tuple(float(c) for c in value)
-    except (TypeError, ValueError):
-        v = ()
-    if len(v) != 3 or not all(math.isfinite(c) for c in v):
-        raise InputError(f"{where}: expected [x, y, z], got {value!r}; fix {CAPTURE_JSON}")
-    return v
+_vector = partial(capture_vector, fix=f"fix {CAPTURE_JSON}")
 
 
 def read_capture_json(folder: Path) -> dict:
@@ -204,12 +205,7 @@ def read_capture_json(folder: Path) -> dict:
     path = folder / CAPTURE_JSON
     if not path.is_file():
         raise InputError(f"--views {folder}: no {CAPTURE_JSON} (the cameras of the views); {_FIX}")
-    try:
-        meta = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"{path}: not readable JSON ({str(exc)[:80]}); fix it or capture again") from None
-    if not isinstance(meta, dict) or meta.get("format") != CAPTURE_FORMAT:
-        raise InputError(f"{path}: not an 'ebr capture' record (no format '{CAPTURE_FORMAT}'); {_FIX}")
+    meta = read_capture_record(path, "fix it or capture again", _FIX)
     if meta.get("setup") != SETUP:
         raise InputError(f"{path}: a '{meta.get('setup')}' capture; --views needs a '{SETUP}' one ({_FIX})")
     return meta

@@ -70,7 +70,16 @@ from ..svbrdf import SVBRDF
 from ..typedconfig import config, option
 from . import outputs
 from .fullres import release_memory
-from .inputs import DEFAULT_FOV, DEFAULT_MAX_SHIFT, MAX_FOV, MIN_FOV, Inputs, load_inputs
+from .inputs import (
+    CAPTURE_FORMAT,
+    CAPTURE_JSON,
+    DEFAULT_FOV,
+    DEFAULT_MAX_SHIFT,
+    MAX_FOV,
+    MIN_FOV,
+    Inputs,
+    load_inputs,
+)
 from .options import (
     checkpoint_option,
     flash_fit_option,
@@ -172,14 +181,14 @@ def near_distance(fov: float) -> float:
 def capture_intensities(flash_path: str) -> dict[str, float]:
     """Flash intensities per shot file name from a ``capture.json`` beside the flash shot ({} if
     none or not an ``ebr capture`` directory)."""
-    meta_path = Path(flash_path).resolve().parent / "capture.json"
+    meta_path = Path(flash_path).resolve().parent / CAPTURE_JSON
     if not meta_path.is_file():
         return {}
     try:
         meta = json.loads(meta_path.read_text())
     except (OSError, json.JSONDecodeError, UnicodeDecodeError):
         return {}
-    if not isinstance(meta, dict) or meta.get("format") != "ebr-capture/1":
+    if not isinstance(meta, dict) or meta.get("format") != CAPTURE_FORMAT:
         return {}
     out = {}
     for rec in meta.get("shots", []):
