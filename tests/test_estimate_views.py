@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_run import estimate_json, nonblank_lines
+from cli_run import assert_each_refused, estimate_json, nonblank_lines
 
 from ebr_mitsuba.cli import main
 from ebr_mitsuba.estimate import multiview
@@ -225,15 +225,10 @@ def _bad_captures(capture_mv: Path, tmp: Path) -> dict:
 
 
 def test_bad_views_exit_2_with_one_line(model, capture_mv, tmp_path, capsys):
-    for name, (views, text) in _bad_captures(capture_mv, tmp_path / "in").items():
-        out = tmp_path / "out" / name.replace(" ", "_")
-        code, _, err = estimate_json(capsys, "--views", views, "--checkpoint", model, "--out", out)
-        assert code == 2, (name, err)
-        lines = nonblank_lines(err)
-        assert len(lines) == 1 and text in lines[0], (name, err)
-        assert not out.exists(), name
-    leftovers = list((tmp_path / "out").iterdir()) if (tmp_path / "out").exists() else []
-    assert leftovers == []  # no temporary directories either
+    cases = _bad_captures(capture_mv, tmp_path / "in")
+    assert_each_refused(
+        capsys, cases, lambda views: ["--views", views, "--checkpoint", model], tmp_path / "out"
+    )
 
 
 def test_model_and_flag_errors(model, capture_mv, tmp_path, capsys):

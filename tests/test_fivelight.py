@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from cli_run import estimate_json, nonblank_lines
+from cli_run import assert_each_refused, estimate_json, nonblank_lines
 
 from ebr_mitsuba.cli import main
 from ebr_mitsuba.errors import ConfigError
@@ -336,15 +336,9 @@ def _bad_setups(capture5: Path, tmp: Path) -> dict:
 
 def test_estimate_lights_bad_input_exits_2_with_one_line(dl_model, capture5, tmp_path, capsys):
     cases = _bad_setups(capture5, tmp_path / "in")
-    for name, (lights, text) in cases.items():
-        out = tmp_path / "out" / name.replace(" ", "_")
-        code, _, err = estimate_json(capsys, "--lights", *lights, "--checkpoint", dl_model, "--out", out)
-        assert code == 2, (name, err)
-        lines = nonblank_lines(err)
-        assert len(lines) == 1 and text in lines[0], (name, err)
-        assert not out.exists(), name
-    leftovers = list((tmp_path / "out").iterdir()) if (tmp_path / "out").exists() else []
-    assert leftovers == []  # no temporary directories either
+    assert_each_refused(
+        capsys, cases, lambda lights: ["--lights", *lights, "--checkpoint", dl_model], tmp_path / "out"
+    )
 
 
 def test_estimate_lights_model_and_flag_errors(dl_model, capture5, tmp_path, capsys, monkeypatch):
