@@ -89,12 +89,13 @@ from .inputs import (
     WARN_SATURATED,
     capture_vector,
     centre_crop,
+    check_saturation_level,
     clip_negatives,
     highlight_position,
     read_capture_record,
     read_exif,
     read_shot,
-    saturation_mask,
+    saturation_masks,
 )
 from .options import (
     checkpoint_option,
@@ -390,8 +391,7 @@ class LightPhotos:
 
 def load_photos(setup: LightSetup, saturation_level: float | None, warnings: list[str]) -> LightPhotos:
     """Read, check and exposure-match the five photos (module docstring)."""
-    if saturation_level is not None and not (math.isfinite(saturation_level) and saturation_level > 0):
-        raise InputError(f"--saturation-level {saturation_level}: give a finite value > 0")
+    check_saturation_level(saturation_level)
     images, levels = {}, {}
     for s in setup.shots:
         images[s.name], levels[s.name] = read_shot(s.path, "lights")
@@ -413,7 +413,7 @@ def load_photos(setup: LightSetup, saturation_level: float | None, warnings: lis
     if h != w:
         warnings.append(f"frame {w}x{h} is not square: centre-cropped to the sample square")
         images = {k: np.ascontiguousarray(centre_crop(v)) for k, v in images.items()}
-    masks = {k: saturation_mask({k: v}, {k: levels[k]}, saturation_level) for k, v in images.items()}
+    masks = saturation_masks(images, levels, saturation_level)
     saturated = np.logical_or.reduce(list(masks.values()))
     frac = float(saturated.mean())
     if frac > MAX_SATURATED:

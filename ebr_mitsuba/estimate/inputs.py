@@ -256,6 +256,17 @@ def saturation_mask(images: dict[str, np.ndarray], levels: dict, default_level: 
     return saturated
 
 
+def saturation_masks(images: dict[str, np.ndarray], levels: dict, default_level: float | None) -> dict:
+    """:func:`saturation_mask` of each shot on its own: name → (H, W) bool."""
+    return {k: saturation_mask({k: v}, {k: levels[k]}, default_level) for k, v in images.items()}
+
+
+def check_saturation_level(level: float | None) -> None:
+    """An :class:`InputError` unless ``level`` (``--saturation-level``) is None or finite and > 0."""
+    if level is not None and not (math.isfinite(level) and level > 0):
+        raise InputError(f"--saturation-level {level}: give a finite value > 0")
+
+
 def clip_negatives(images: dict[str, np.ndarray], warnings: list[str]) -> None:
     """Negative pixel values set to 0 in place of each shot (a warning when they are more than
     rounding: below −1e-3 × the shot's maximum)."""
@@ -562,8 +573,7 @@ def load_inputs(
         raise InputError(
             f"--exposure-ratio {exposure_ratio}: give a finite value > 0 (no-flash exposure ÷ flash exposure)"
         )
-    if saturation_level is not None and not (math.isfinite(saturation_level) and saturation_level > 0):
-        raise InputError(f"--saturation-level {saturation_level}: give a finite value > 0")
+    check_saturation_level(saturation_level)
     check_shot_flags(flash, noflash, far_flash, far_noflash, exposure_ratio)
     raw_paths = {
         k: str(p) for k, p in zip(SHOT_NAMES, (flash, noflash, far_flash, far_noflash)) if p is not None
@@ -700,6 +710,8 @@ __all__ = [
     "centre_crop",
     "clip_negatives",
     "saturation_mask",
+    "saturation_masks",
+    "check_saturation_level",
     "SHOT_NAMES",
     "DEFAULT_FOV",
     "DEFAULT_MAX_SHIFT",

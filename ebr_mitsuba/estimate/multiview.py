@@ -99,10 +99,11 @@ from .inputs import (
     MAX_SATURATED,
     WARN_SATURATED,
     capture_vector,
+    check_saturation_level,
     clip_negatives,
     read_capture_record,
     read_shot,
-    saturation_mask,
+    saturation_masks,
 )
 from .options import checkpoint_option, intensity_option, max_size_option, out_option, saturation_option
 from .rectify import rectify
@@ -295,8 +296,7 @@ class RectifiedViews:
 def read_views(shots: list[ViewShot], saturation_level: float | None, warnings: list[str]) -> CameraViews:
     """Read and check the 9 camera images (module docstring, "Inputs"): one size, at least
     :data:`MIN_INPUT_SIZE` pixels, at most half of the pixels saturated."""
-    if saturation_level is not None and not (math.isfinite(saturation_level) and saturation_level > 0):
-        raise InputError(f"--saturation-level {saturation_level}: give a finite value > 0")
+    check_saturation_level(saturation_level)
     images, levels = {}, {}
     for s in shots:
         images[s.name], levels[s.name] = read_shot(s.path, "views")
@@ -315,7 +315,7 @@ def read_views(shots: list[ViewShot], saturation_level: float | None, warnings: 
             f"--views: {first.path} is {w}x{h} pixels; ebr estimate needs at least {MIN_INPUT_SIZE} "
             f"pixels on the shorter side"
         )
-    masks = {k: saturation_mask({k: v}, {k: levels[k]}, saturation_level) for k, v in images.items()}
+    masks = saturation_masks(images, levels, saturation_level)
     frac = float(np.mean([m.mean() for m in masks.values()]))
     if frac > MAX_SATURATED:
         raise InputError(
