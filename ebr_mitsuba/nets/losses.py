@@ -279,6 +279,7 @@ def multiview_rerender_loss(
     tau_d = (c * y_d - b * y_s) / det
     tau_s = (a * y_s - b * y_d) / det
     shape = (-1, 1, 1, 1, 1)
-    resid = views - tau_d.view(shape) * diffuse - tau_s.view(shape) * specular
-    denom = (3.0 * w.expand_as(views[:, :, :1]).sum()).clamp_min(1e-8)
-    return (w * resid.square()).sum() / denom, torch.stack([tau_d, tau_s], dim=1)
+    fit = tau_d.view(shape) * diffuse + tau_s.view(shape) * specular
+    w = w.expand_as(views[:, :, :1])
+    loss = masked_mse(fit.flatten(0, 1), views.flatten(0, 1), w.flatten(0, 1))
+    return loss, torch.stack([tau_d, tau_s], dim=1)
