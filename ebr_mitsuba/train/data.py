@@ -57,7 +57,7 @@ class TrainingData:
     sg: torch.Tensor
     sg_mask: torch.Tensor
     gains: torch.Tensor
-    exposure: torch.Tensor | None = None
+    exposure: torch.Tensor
 
     def __len__(self) -> int:
         return int(self.maps.shape[0])

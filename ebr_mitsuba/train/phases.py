@@ -327,8 +327,7 @@ class MAIRPhase(Phase):
         x, d, v = self.inputs, self.inputs.data, self.views
         photos = d.photos[idx][:, list(v.shots)].to(x.device).clamp_min(0.0)
         b = photos.shape[0]
-        exposure = torch.ones(b) if d.exposure is None else d.exposure[idx]
-        camera_units = photos * exposure.to(photos).view(b, 1, 1, 1, 1)
+        camera_units = photos * d.exposure[idx].to(photos).view(b, 1, 1, 1, 1)
         unclipped = (camera_units < CLIP_LEVEL).all(dim=2, keepdim=True).to(photos.dtype)
         weights = v.weights.expand(b, *v.weights.shape)
         directions = v.directions.expand(b, *v.directions.shape)
