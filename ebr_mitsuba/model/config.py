@@ -332,14 +332,14 @@ def parse_config(doc: dict[str, Any], source: str = "<memory>", base_dir: str | 
     data = dataclasses.replace(data, train=_expand(data.train, source, "data.train", base))
     if train.init:
         train = dataclasses.replace(train, init=_expand(train.init, source, "train.init", base))
-    if kind == "dualloss" and doc.get("stages") is not None:
-        raise ConfigError(f"{source}: [stages] is for kind = 'ebrenv'; a dualloss config sets [train].steps")
-    for name in ("selection", "extract"):
-        if kind != "ebrenv" and doc.get(name) is not None:
-            raise ConfigError(
-                f"{source}: [{name}] is for kind = 'ebrenv' (exemplars and SG lighting); remove it "
-                f"from this {kind} config"
+    for name in DROPPED_TABLES[kind]:
+        if doc.get(name) is not None:
+            fix = (
+                "; a dualloss config sets [train].steps"
+                if name == "stages"
+                else f" (exemplars and SG lighting); remove it from this {kind} config"
             )
+            raise ConfigError(f"{source}: [{name}] is for kind = 'ebrenv'{fix}")
     raw = {}
     for name in ("model", "selection", "extract"):
         table = doc.get(name) or {}
