@@ -28,6 +28,15 @@ def _truth(item: dict) -> SVBRDF:
     return SVBRDF(m[..., :3], m[..., 3:6], m[..., 6:9], m[..., 9], source="ground truth")
 
 
+def _at_size(maps: SVBRDF, size: tuple[int, int]) -> SVBRDF:
+    """A grid-sized model's maps area-resampled back to the data set's resolution ``size``."""
+    if maps.shape == size:
+        return maps
+    from ..materials import resample_svbrdf
+
+    return resample_svbrdf(maps, size)
+
+
 def model_predictor(predictor: Predictor | LightsPredictor) -> Callable[[dict, list[str]], SVBRDF]:
     """``predict(item, shot_names) -> SVBRDF`` for a model's predictor
     (:func:`ebr_mitsuba.model.predict.load_predictor`): a flash / no-flash
@@ -64,12 +73,7 @@ def model_predictor(predictor: Predictor | LightsPredictor) -> Callable[[dict, l
                     f"the data set has shots {names}; this near-far model needs a near-far data set"
                 )
             far = (img["far_flash"], img["far_noflash"])
-        maps = predictor.predict(img["flash"], img["noflash"], *far).maps
-        if maps.shape != size:
-            from ..materials import resample_svbrdf
-
-            maps = resample_svbrdf(maps, size)
-        return maps
+        return _at_size(predictor.predict(img["flash"], img["noflash"], *far).maps, size)
 
     return run
 
@@ -83,12 +87,7 @@ def _lights_predictor(predictor: LightsPredictor) -> Callable[[dict, list[str]],
         grid = int(predictor.grid)
         if size != (grid, grid):  # the grid-resampled estimate, as for the flash / no-flash models
             photos = torch.nn.functional.interpolate(photos, size=(grid, grid), mode="area")
-        maps = predictor.predict_lights([p.permute(1, 2, 0).numpy() for p in photos]).maps
-        if maps.shape != size:
-            from ..materials import resample_svbrdf
-
-            maps = resample_svbrdf(maps, size)
-        return maps
+        return _at_size(predictor.predict_lights([p.permute(1, 2, 0).numpy() for p in photos]).maps, size)
 
     return run
 
