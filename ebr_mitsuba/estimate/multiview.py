@@ -339,13 +339,14 @@ def rectify_views(
     for s in shots:
         if progress is not None:
             progress(s.name)
-        img, wt = rectify(camera.images[s.name], s.camera, s.target, s.up, s.fov, work)
-        m, _ = rectify(camera.saturated[s.name].astype(np.float32), s.camera, s.target, s.up, s.fov, work)
+        # the saturation mask rides along as a fourth channel: one projection per view
+        both = np.concatenate([camera.images[s.name], camera.saturated[s.name][..., None]], axis=-1)
+        out, wt = rectify(both, s.camera, s.target, s.up, s.fov, work)
         if not wt.any():
             raise InputError(f"--views: {s.path}: its camera does not see the sample; check {CAPTURE_JSON}")
-        rect[s.name] = (img * wt[..., None]).astype(np.float32)
+        rect[s.name] = (out[..., :3] * wt[..., None]).astype(np.float32)
         weights[s.name] = wt
-        sat[s.name] = m[..., 0] > 0
+        sat[s.name] = out[..., 3] > 0
     h, w = camera.size
     return RectifiedViews(rect, weights, sat, (int(h), int(w)), camera.saturated_fraction)
 
