@@ -354,19 +354,6 @@ def rectify_views(
 # -- re-renders -------------------------------------------------------------------------------------
 
 
-def _torch_maps(maps):
-    import torch
-
-    from ..nets.maps import Maps
-
-    def t(a):
-        a = np.asarray(a, np.float32)
-        a = a[..., None] if a.ndim == 2 else a
-        return torch.from_numpy(np.ascontiguousarray(a)).permute(2, 0, 1)[None]
-
-    return Maps(t(maps.normal), t(maps.diffuse), t(maps.specular), t(maps.roughness))
-
-
 def _torch_lighting(lighting, size: int):
     """:class:`~ebr_mitsuba.model.predictor.PixelLighting` as the torch one, bilinearly resized to
     ``size``² (axes renormalised)."""
@@ -402,9 +389,10 @@ def rerender_parts(maps, lighting, shots: list[ViewShot], size: int) -> tuple[np
 
     from ..nets.mair_render import multiview_renders
     from ..nets.mair_views import view_direction_maps
+    from ..nets.maps import Maps
 
     with torch.no_grad():
-        m = _torch_maps(maps)
+        m = Maps.from_svbrdf([maps])
         lt = _torch_lighting(lighting, size)
         vshots = [Shot(s.name, s.camera, s.fov, s.flash) for s in shots]
         dirs = view_direction_maps(size, size, vshots)
