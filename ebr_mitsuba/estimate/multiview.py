@@ -387,6 +387,7 @@ def rerender_parts(maps, lighting, shots: list[ViewShot], size: int) -> tuple[np
     in the 3×3 setup (a flash elsewhere is a warning of :func:`resolve_views`)."""
     import torch
 
+    from ..nets.mair_lighting import PixelSGLighting
     from ..nets.mair_render import multiview_renders
     from ..nets.mair_views import view_direction_maps
     from ..nets.maps import Maps
@@ -400,7 +401,8 @@ def rerender_parts(maps, lighting, shots: list[ViewShot], size: int) -> tuple[np
             [s.flash if s.flash is not None else s.camera for s in shots], dtype=torch.float32
         )
         env_d, env_s = multiview_renders(m, lt, dirs, flashes, 0.0)
-        dark = dataclasses.replace(lt, visibility=torch.zeros_like(lt.visibility))
+        # no lobes: the flash alone (the SG term, the costly one, is not computed again)
+        dark = PixelSGLighting(lt.axis[:, :0], lt.sharpness[:, :0], lt.visibility[:, :0], lt.intensity[:, :0])
         fl_d, fl_s = multiview_renders(m, dark, dirs, flashes, DEFAULT_FLASH_INTENSITY)
 
     def hwc(x):
