@@ -94,7 +94,7 @@ from .inputs import (
     highlight_position,
     read_capture_record,
     read_exif,
-    read_shot,
+    read_shots_of_one_size,
     saturation_masks,
 )
 from .options import (
@@ -105,7 +105,7 @@ from .options import (
     out_option,
     saturation_option,
 )
-from .resample import MIN_INPUT_SIZE, model_grid, working_size
+from .resample import model_grid, working_size
 
 LIGHT_COUNT = 5
 LIGHT_NAMES = tuple(f"light{k}" for k in range(LIGHT_COUNT))
@@ -392,24 +392,13 @@ class LightPhotos:
 def load_photos(setup: LightSetup, saturation_level: float | None, warnings: list[str]) -> LightPhotos:
     """Read, check and exposure-match the five photos (module docstring)."""
     check_saturation_level(saturation_level)
-    images, levels = {}, {}
-    for s in setup.shots:
-        images[s.name], levels[s.name] = read_shot(s.path, "lights")
     paths = {s.name: s.path for s in setup.shots}
-    shapes = {k: v.shape[:2] for k, v in images.items()}
-    if len(set(shapes.values())) > 1:
-        first = setup.shots[0].name
-        odd = next(k for k, v in shapes.items() if v != shapes[first])
-        raise InputError(
-            f"--lights: {paths[odd]} is {shapes[odd][1]}x{shapes[odd][0]} but {paths[first]} is "
-            f"{shapes[first][1]}x{shapes[first][0]}; give five photos of one size from one fixed camera"
-        )
-    h, w = shapes[setup.shots[0].name]
-    if min(h, w) < MIN_INPUT_SIZE:
-        raise InputError(
-            f"--lights: {paths[setup.shots[0].name]} is {w}x{h} pixels; ebr estimate needs at least "
-            f"{MIN_INPUT_SIZE} pixels on the shorter side (the sample should fill the frame)"
-        )
+    images, levels, (h, w) = read_shots_of_one_size(
+        list(paths.items()),
+        "lights",
+        "give five photos of one size from one fixed camera",
+        " (the sample should fill the frame)",
+    )
     if h != w:
         warnings.append(f"frame {w}x{h} is not square: centre-cropped to the sample square")
         images = {k: np.ascontiguousarray(centre_crop(v)) for k, v in images.items()}

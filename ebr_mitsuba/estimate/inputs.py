@@ -676,6 +676,30 @@ def check_shot_flags(flash, noflash, far_flash, far_noflash, exposure_ratio=None
         raise InputError("the same file is given for two shots; give one file per shot")
 
 
+def read_shots_of_one_size(
+    shots: list[tuple[str, str]], flag: str, one_size: str, small: str = ""
+) -> tuple[dict[str, np.ndarray], dict[str, float | None], tuple[int, int]]:
+    """The ``(name, path)`` shots of a capture read in order (:func:`read_shot`, errors naming
+    ``--flag``): images and saturation levels by name, and their (h, w). An :class:`InputError`
+    ``--flag: …`` when a shot's size differs from the first's (ending in the advice ``one_size``) or
+    the shorter side is under :data:`MIN_INPUT_SIZE` pixels (followed by ``small``)."""
+    images, levels = {}, {}
+    for name, path in shots:
+        images[name], levels[name] = read_shot(path, flag)
+    first_path = shots[0][1]
+    h, w = images[shots[0][0]].shape[:2]
+    for name, path in shots:
+        hk, wk = images[name].shape[:2]
+        if (hk, wk) != (h, w):
+            raise InputError(f"--{flag}: {path} is {wk}x{hk} but {first_path} is {w}x{h}; {one_size}")
+    if min(h, w) < MIN_INPUT_SIZE:
+        raise InputError(
+            f"--{flag}: {first_path} is {w}x{h} pixels; ebr estimate needs at least {MIN_INPUT_SIZE} "
+            f"pixels on the shorter side{small}"
+        )
+    return images, levels, (h, w)
+
+
 def read_capture_record(path: Path, unreadable: str, foreign: str) -> dict:
     """The ``ebr capture`` record (``capture.json``) at ``path``; an :class:`InputError` naming it
     when it is not readable JSON (advice ``unreadable``) or not such a record (advice ``foreign``)."""
@@ -706,6 +730,7 @@ __all__ = [
     "CAPTURE_JSON",
     "capture_vector",
     "read_capture_record",
+    "read_shots_of_one_size",
     "Inputs",
     "centre_crop",
     "clip_negatives",

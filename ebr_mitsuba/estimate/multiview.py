@@ -102,12 +102,12 @@ from .inputs import (
     check_saturation_level,
     clip_negatives,
     read_capture_record,
-    read_shot,
+    read_shots_of_one_size,
     saturation_masks,
 )
 from .options import checkpoint_option, intensity_option, max_size_option, out_option, saturation_option
 from .rectify import rectify
-from .resample import MIN_INPUT_SIZE, working_size
+from .resample import working_size
 
 VIEW_COUNT = 9
 SETUP = "multi-view"
@@ -295,26 +295,11 @@ class RectifiedViews:
 
 def read_views(shots: list[ViewShot], saturation_level: float | None, warnings: list[str]) -> CameraViews:
     """Read and check the 9 camera images (module docstring, "Inputs"): one size, at least
-    :data:`MIN_INPUT_SIZE` pixels, at most half of the pixels saturated."""
+    :data:`~.resample.MIN_INPUT_SIZE` pixels, at most half of the pixels saturated."""
     check_saturation_level(saturation_level)
-    images, levels = {}, {}
-    for s in shots:
-        images[s.name], levels[s.name] = read_shot(s.path, "views")
-    shapes = {k: v.shape[:2] for k, v in images.items()}
-    first = shots[0]
-    for s in shots:
-        if shapes[s.name] != shapes[first.name]:
-            a, b = shapes[s.name], shapes[first.name]
-            raise InputError(
-                f"--views: {s.path} is {a[1]}x{a[0]} but {first.path} is {b[1]}x{b[0]}; "
-                f"give 9 views of one size"
-            )
-    h, w = shapes[first.name]
-    if min(h, w) < MIN_INPUT_SIZE:
-        raise InputError(
-            f"--views: {first.path} is {w}x{h} pixels; ebr estimate needs at least {MIN_INPUT_SIZE} "
-            f"pixels on the shorter side"
-        )
+    images, levels, _ = read_shots_of_one_size(
+        [(s.name, s.path) for s in shots], "views", "give 9 views of one size"
+    )
     masks = saturation_masks(images, levels, saturation_level)
     frac = float(np.mean([m.mean() for m in masks.values()]))
     if frac > MAX_SATURATED:
