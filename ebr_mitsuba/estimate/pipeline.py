@@ -51,7 +51,6 @@ as they are (the reference exposure assumed) and the intensity is fitted.
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import time
 from collections.abc import Callable
@@ -71,7 +70,6 @@ from ..typedconfig import config, option
 from . import outputs
 from .fullres import release_memory
 from .inputs import (
-    CAPTURE_FORMAT,
     CAPTURE_JSON,
     DEFAULT_FOV,
     DEFAULT_MAX_SHIFT,
@@ -79,6 +77,7 @@ from .inputs import (
     MIN_FOV,
     Inputs,
     load_inputs,
+    read_capture_record,
 )
 from .options import (
     checkpoint_option,
@@ -185,10 +184,8 @@ def capture_intensities(flash_path: str) -> dict[str, float]:
     if not meta_path.is_file():
         return {}
     try:
-        meta = json.loads(meta_path.read_text())
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError):
-        return {}
-    if not isinstance(meta, dict) or meta.get("format") != CAPTURE_FORMAT:
+        meta = read_capture_record(meta_path, "", "")
+    except InputError:  # unreadable or not an 'ebr capture' record
         return {}
     out = {}
     for rec in meta.get("shots", []):
