@@ -243,7 +243,8 @@ class PixelLighting:
         h, w = self.shape
         row = h // 2 if row is None else row
         col = w // 2 if col is None else col
-        amp = np.maximum(self.amplitude[:, row, col].astype(np.float64), 0.0)
+        amp = (self.visibility[:, row, col, None] * self.intensity).astype(np.float32)  # μ η at that pixel
+        amp = np.maximum(amp.astype(np.float64), 0.0)
         sharp = np.maximum(self.sharpness[:, row, col].astype(np.float64), 1e-6)
         return SGEnvironment(self.axis[:, row, col].astype(np.float64), sharp, amp)
 
