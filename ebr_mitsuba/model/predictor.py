@@ -248,13 +248,6 @@ class PixelLighting:
         sharp = np.maximum(self.sharpness[:, row, col].astype(np.float64), 1e-6)
         return SGEnvironment(self.axis[:, row, col].astype(np.float64), sharp, amp)
 
-    def radiance(self, directions: np.ndarray) -> np.ndarray:
-        """Incident radiance at every pixel from D unit ``directions`` (D, 3): (D, H, W, 3)."""
-        d = np.asarray(directions, np.float64).reshape(-1, 3)
-        cos = np.einsum("dc,shwc->dshw", d, self.axis.astype(np.float64))
-        lobes = np.exp(self.sharpness[None].astype(np.float64) * (cos - 1.0))
-        return np.einsum("dshw,shwc->dhwc", lobes, self.amplitude.astype(np.float64)).astype(np.float32)
-
 
 @dataclass
 class ViewsPrediction:
