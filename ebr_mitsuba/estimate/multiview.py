@@ -551,12 +551,8 @@ def run_multiview(
     path = model_path(cfg.checkpoint) if predictor is None else None
     shots, warnings = resolve_views(cfg.views)
     camera_views = read_views(shots, cfg.saturation_level, warnings)
-    if cfg.flash_intensity is not None:
-        value = float(cfg.flash_intensity)
-        if not (math.isfinite(value) and value > 0):
-            raise InputError(f"--flash-intensity {value}: give a finite value > 0")
-        known = [value] * VIEW_COUNT
-        known_source = "--flash-intensity"
+    if cfg.flash_intensity is not None:  # finite and > 0: the frozen config checked it
+        known, known_source = [float(cfg.flash_intensity)] * VIEW_COUNT, "--flash-intensity"
     elif all(s.intensity is not None for s in shots):
         known, known_source = [float(s.intensity) for s in shots], CAPTURE_JSON
     else:
