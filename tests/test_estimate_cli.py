@@ -11,6 +11,7 @@ import re
 
 import pytest
 from cli_help import help_entries, subparser
+from cli_run import nonblank_lines
 
 from ebr_mitsuba import typedconfig as tc
 from ebr_mitsuba.cli import main
@@ -151,7 +152,7 @@ def test_bad_values_exit_2_naming_the_flag(tmp_path, capsys, extra, needle):
     out = tmp_path / "out"
     code = main(["estimate", "--flash", str(tmp_path / "f.exr"), "--out", str(out), *extra])
     err = capsys.readouterr().err
-    lines = [line for line in err.splitlines() if line.strip()]
+    lines = nonblank_lines(err)
     assert code == 2 and len(lines) == 1 and needle in lines[0], err
     assert not out.exists()
 
@@ -191,7 +192,7 @@ def test_required_out_is_an_argparse_error():
 def test_other_options_are_refused_with_views(tmp_path, capsys, extra, needle):
     out = tmp_path / "out"
     code = main(["estimate", "--views", str(tmp_path), "--out", str(out), *extra])
-    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    lines = nonblank_lines(capsys.readouterr().err)
     assert code == 2 and len(lines) == 1 and needle in lines[0], lines
     assert not out.exists()
     # an option given at its default value is not refused
