@@ -89,6 +89,58 @@ def test_estimate_views_writes_every_output(model, capture_mv, tmp_path, capsys)
     assert "progress" not in err or "estimate --views" in err
 
 
+def _as_generated_sample(capture: Path, folder: Path, exposure: float) -> Path:
+    """``capture`` laid out as a generated multi-view sample (``sample.json``, ``ebr generate``):
+    the views under ``photos/`` scaled by the camera ``exposure``, the flash intensity stated at
+    the reference exposure as the data set does."""
+    meta = json.loads((capture / "capture.json").read_text())
+    (folder / "photos").mkdir(parents=True)
+    shots = []
+    for rec in meta["shots"]:
+        write_exr(folder / "photos" / rec["file"], read_exr(capture / rec["file"]) * exposure)
+        shot = {k: v for k, v in rec.items() if k != "file"}
+        shot["photo"] = f"photos/{rec['file']}"
+        shots.append(shot)
+    record = {
+        "format": "ebr-sample/1",
+        "setup": "multi-view",
+        "camera": {"exposure": exposure},
+        "shots": shots,
+    }
+    (folder / "sample.json").write_text(json.dumps(record))
+    return folder
+
+
+def test_a_generated_sample_estimates_as_its_capture(model, capture_mv, tmp_path, capsys):
+    # a generated sample's views are at the camera's exposure and its flash intensity is the data
+    # set's: read as photo units (intensity × exposure), the estimate is the capture's
+    sample = _as_generated_sample(capture_mv, tmp_path / "sample", 0.25)
+    runs = {}
+    for name, src in (("capture", capture_mv), ("sample", sample)):
+        code, summary, err = estimate_json(
+            capsys, "--views", src, "--checkpoint", model, "--out", tmp_path / f"est_{name}"
+        )
+        assert code == 0, err
+        runs[name] = summary
+    assert runs["sample"]["flash"]["view11_flash"] == {"intensity": 2.5, "source": "capture.json"}
+    assert runs["sample"]["inputs"]["geometry"] == str(sample / "sample.json")
+    for m in ("normal", "diffuse", "specular", "roughness"):
+        a, b = (read_exr(tmp_path / f"est_{k}" / "maps" / f"{m}.exr") for k in ("capture", "sample"))
+        assert np.allclose(a, b, atol=1e-4), m
+    # the lighting is in photo units: a quarter of the capture's
+    assert np.isclose(
+        runs["sample"]["lighting"]["scale"], 0.25 * runs["capture"]["lighting"]["scale"], rtol=1e-3
+    )
+    # a sample of another setup is refused with one line
+    record = json.loads((sample / "sample.json").read_text())
+    (sample / "sample.json").write_text(json.dumps({**record, "setup": "near"}))
+    code = main(
+        ["estimate", "--views", str(sample), "--checkpoint", str(model), "--out", str(tmp_path / "x")]
+    )
+    err = capsys.readouterr().err
+    assert code == 2 and len(nonblank_lines(err)) == 1 and "a 'near' sample" in err, err
+
+
 def test_the_network_sees_the_rectified_views(model, capture_mv, tmp_path):
     """What reaches the predictor: 9 views at the grid, in capture.json's order, at the reference
     exposure (the capture's flash is 10 W/sr: factor 1; --flash-intensity 20: factor 0.5), times

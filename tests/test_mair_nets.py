@@ -386,7 +386,7 @@ def test_config_from_dict():
     )
     assert custom.size.mva_dim == 12 and custom.size.refine.widths == (8, 16)
     with pytest.raises(ConfigError, match="unknown key"):
-        MAIRConfig.from_dict({"views": 9})
+        MAIRConfig.from_dict({"num_views": 9})
     with pytest.raises(ConfigError, match="unknown key"):
         MAIRConfig.from_dict({"size": {"mva_width": 8}})
     with pytest.raises(ConfigError, match="fusion"):

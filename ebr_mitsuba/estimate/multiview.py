@@ -28,10 +28,12 @@ key                      meaning
 =======================  ==========================================================================
 
 A photographed set can be estimated by writing such a ``capture.json`` by hand beside its nine
-images. Refused with one line (exit 2) and nothing written: no or an unreadable ``capture.json``,
-one of another setup, another count than 9 shot records, a view file missing or unreadable, views
-of different sizes or under 32 pixels, a shot record without a camera, a camera below the sample,
-more than half of the pixels saturated, a checkpoint of another kind, no checkpoint.
+images. ``DIR`` may also be a sample of a generated multi-view data set: its ``sample.json`` is read
+as the record (:func:`sample_capture_record`). Refused with one line (exit 2) and nothing written:
+no or an unreadable ``capture.json``, one of another setup, another count than 9 shot records, a
+view file missing or unreadable, views of different sizes or under 32 pixels, a shot record without
+a camera, a camera below the sample, more than half of the pixels saturated, a checkpoint of another
+kind, no checkpoint.
 
 **Rectification** (:mod:`.rectify`): each view is resampled onto the sample grid of
 ``docs/conventions.md`` by projecting the grid's surface points into its camera; the points a
@@ -86,6 +88,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
+from ..data.store import SAMPLE_FORMAT, SAMPLE_JSON
 from ..errors import InputError
 from ..fsutil import atomic_dir
 from ..geometry import DEFAULT_FLASH_INTENSITY, Shot, setup_shots
@@ -130,8 +133,8 @@ class MultiViewConfig:
     directory (module docstring)."""
 
     views: str = option(
-        meaning="directory of 'ebr capture --setup multi-view': 9 views and capture.json "
-        "(docs/mair.md, 'Estimating'); instead of --flash",
+        meaning="directory of 'ebr capture --setup multi-view' (9 views and capture.json) or a "
+        "generated multi-view sample (sample.json; docs/mair.md, 'Estimating'); instead of --flash",
         flag="--views",
         metavar="DIR",
     )
@@ -202,14 +205,45 @@ _vector = partial(capture_vector, fix=f"fix {CAPTURE_JSON}")
 
 
 def read_capture_json(folder: Path) -> dict:
-    """``folder/capture.json`` of a multi-view capture; :class:`InputError` naming it otherwise."""
+    """``folder/capture.json`` of a multi-view capture, or the record of a generated multi-view
+    sample (:func:`sample_capture_record`); :class:`InputError` naming the file otherwise."""
     path = folder / CAPTURE_JSON
     if not path.is_file():
+        if (folder / SAMPLE_JSON).is_file():
+            return sample_capture_record(folder / SAMPLE_JSON)
         raise InputError(f"--views {folder}: no {CAPTURE_JSON} (the cameras of the views); {_FIX}")
     meta = read_capture_record(path, "fix it or capture again", _FIX)
     if meta.get("setup") != SETUP:
         raise InputError(f"{path}: a '{meta.get('setup')}' capture; --views needs a '{SETUP}' one ({_FIX})")
     return meta
+
+
+def sample_capture_record(path: Path) -> dict:
+    """A generated sample's ``sample.json`` (``ebr generate``, :mod:`ebr_mitsuba.data.store`) read
+    as the ``capture.json`` of its views: each shot's ``photo`` is its ``file`` and its flash
+    intensity is stated in photo units (the data set's intensity times the sample's exposure)."""
+    try:
+        meta = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"{path}: not readable JSON ({str(exc)[:80]}); regenerate the sample") from None
+    if not isinstance(meta, dict) or meta.get("format") != SAMPLE_FORMAT:
+        raise InputError(f"{path}: not a generated sample (no format '{SAMPLE_FORMAT}'); {_FIX}")
+    if meta.get("setup") != SETUP:
+        raise InputError(f"{path}: a '{meta.get('setup')}' sample; --views needs a '{SETUP}' one ({_FIX})")
+    try:
+        exposure = float(meta["camera"]["exposure"])
+    except (KeyError, TypeError, ValueError):
+        raise InputError(f"{path}: no camera exposure; regenerate the sample") from None
+    shots = []
+    for rec in meta.get("shots") or []:
+        if not isinstance(rec, dict):
+            raise InputError(f"{path}: a shot record is not a table; regenerate the sample")
+        shot = {k: v for k, v in rec.items() if k not in ("photo", "flash_intensity")}
+        shot["file"] = rec.get("photo")
+        if isinstance(rec.get("flash_intensity"), (int, float)):
+            shot["flash_intensity"] = float(rec["flash_intensity"]) * exposure
+        shots.append(shot)
+    return {"setup": SETUP, "shots": shots, "record_path": str(path)}
 
 
 def resolve_views(views: str | Path) -> tuple[list[ViewShot], list[str]]:
@@ -219,7 +253,7 @@ def resolve_views(views: str | Path) -> tuple[list[ViewShot], list[str]]:
     if not folder.is_dir():
         raise InputError(f"--views {views}: not a directory; {_FIX}")
     meta = read_capture_json(folder)
-    where = folder / CAPTURE_JSON
+    where = Path(meta.get("record_path") or folder / CAPTURE_JSON)
     records = meta.get("shots")
     n = len(records) if isinstance(records, list) else 0
     if n != VIEW_COUNT:
@@ -530,24 +564,73 @@ def write_weights(out: Path, weights: dict[str, np.ndarray]) -> list[str]:
 # -- the job ----------------------------------------------------------------------------------------
 
 
-def run_multiview(
+@dataclass
+class ViewsEstimate:
+    """What :func:`estimate_views` makes of a capture: its ``shots``, the rectified ``views`` at the
+    working size ``work``, the model ``grid``, the ``maps`` at ``work``, the network's ``prediction``
+    (lighting without scale), the re-render parts ``flash`` and ``env`` per view, the fitted flash
+    factors ``a`` and lighting scale ``b`` (the lighting in photo units is the network's times b),
+    ``known`` (the flash intensities in photo units, None: fitted) and where they came from,
+    ``to_reference`` (each view's factor to the reference exposure), ``warnings``, ``timings``
+    (stage → seconds, :class:`.outputs.Stages`)."""
+
+    shots: list[ViewShot]
+    views: RectifiedViews
+    work: int
+    grid: int
+    maps: object
+    prediction: object
+    flash: np.ndarray
+    env: np.ndarray
+    a: list[float]
+    b: float
+    known: list[float] | None
+    known_source: str | None
+    to_reference: list[float]
+    warnings: list[str]
+
+    @property
+    def names(self) -> list[str]:
+        return [s.name for s in self.shots]
+
+    @property
+    def lighting(self):
+        """The per-pixel lighting in photo units (:class:`~ebr_mitsuba.model.predictor.PixelLighting`)."""
+        return self.prediction.lighting.scaled(self.b)
+
+    def masks(self) -> list[np.ndarray]:
+        """Per view: the pixels it saw in frame and unsaturated (where the errors count)."""
+        return [(self.views.weights[n] > 0) & ~self.views.saturated[n] for n in self.names]
+
+    def renders(self) -> dict[str, np.ndarray]:
+        """Per view: the re-render ``a_k F_k + b E_k`` times the view's in-frame weight."""
+        return {
+            n: ((self.a[k] * self.flash[k] + self.b * self.env[k]) * self.views.weights[n][..., None]).astype(
+                np.float32
+            )
+            for k, n in enumerate(self.names)
+        }
+
+
+def estimate_views(
     cfg: MultiViewConfig,
+    predictor,
     *,
     log: Callable[[str], None] | None = None,
-    bar: Callable | None = None,
-    predictor=None,
-) -> dict:
-    """Run the multi-view estimate of ``cfg``; return the summary (also ``estimate.json``).
-
-    ``log(msg)``: stage messages (stderr in the command); ``bar``: a tqdm-like factory for the
-    progress bar (stderr); ``predictor``: a :class:`~ebr_mitsuba.model.predictor.ViewsPredictor`
-    already loaded (None: ``cfg.checkpoint``)."""
+    tick: Callable[[str], None] | None = None,
+    stage: Callable | None = None,
+) -> ViewsEstimate:
+    """Read, rectify and estimate the capture of ``cfg.views`` with ``predictor`` (a
+    :class:`~ebr_mitsuba.model.predictor.ViewsPredictor`, or None: ``cfg.checkpoint``) and fit the
+    re-render's scales (module docstring); writes nothing. ``log``: stage messages; ``tick(what)``:
+    called after each view's rectification and after the network and the re-render; ``stage(name,
+    t0)``: the clock of :class:`.outputs.Stages`."""
     from ..model.predictor import ViewsPredictor
-    from .pipeline import ESTIMATE_FORMAT
 
     log = log or (lambda msg: None)
-    stage = outputs.Stages(cfg.out)  # the clock; --out checked
-    out, timings, t0 = stage.out, stage.timings, stage.t_start
+    tick = tick or (lambda what: None)
+    stage = stage or (lambda name, t0: None)
+    t0 = time.perf_counter()
     path = model_path(cfg.checkpoint) if predictor is None else None
     shots, warnings = resolve_views(cfg.views)
     camera_views = read_views(shots, cfg.saturation_level, warnings)
@@ -576,60 +659,93 @@ def run_multiview(
     for w in warnings:
         log(f"warning: {w}")
 
+    t0 = time.perf_counter()
+    log(f"rectifying the {VIEW_COUNT} views onto the sample grid")
+    views = rectify_views(shots, camera_views, work, tick)
+    stage("rectify", t0)
+
+    t0 = time.perf_counter()
+    log(f"estimating the maps and the per-pixel lighting at {grid}x{grid} (working size {work}x{work})")
+    names = [s.name for s in shots]
+    to_reference = [DEFAULT_FLASH_INTENSITY / k for k in known] if known else [1.0] * VIEW_COUNT
+    stack = np.stack([views.images[n] * np.float32(f) for n, f in zip(names, to_reference)])
+    wts = np.stack([views.weights[n] for n in names])
+    if work != grid:
+        stack = np.stack([resize_area(v, (grid, grid)) for v in stack])
+        wts = np.stack([resize_area(w[..., None], (grid, grid))[..., 0] >= 1 - 1e-6 for w in wts])
+    pred = predictor.predict_views(
+        stack.astype(np.float32), wts.astype(np.float32), [s.camera for s in shots]
+    )
+    maps = pred.maps if work == grid else resample_svbrdf(pred.maps, work)
+    if maps.shape != (work, work):
+        raise RuntimeError(f"the network returned {maps.shape} maps for a {work}x{work} grid")
+    tick("network")
+    stage("network", t0)
+
+    t0 = time.perf_counter()
+    log(f"re-rendering the {VIEW_COUNT} views")
+    flash, env = rerender_parts(maps, pred.lighting, shots, work)
+    photos = [views.images[n] for n in names]
+    masks = [(views.weights[n] > 0) & ~views.saturated[n] for n in names]
+    factors = [k / DEFAULT_FLASH_INTENSITY for k in known] if known else None
+    a, b = fit_scales(photos, flash, env, masks, factors)
+    tick("re-render")
+    stage("rerender", t0)
+    return ViewsEstimate(
+        shots, views, work, grid, maps, pred, flash, env, a, b, known, known_source, to_reference, warnings
+    )
+
+
+def run_multiview(
+    cfg: MultiViewConfig,
+    *,
+    log: Callable[[str], None] | None = None,
+    bar: Callable | None = None,
+    predictor=None,
+) -> dict:
+    """Run the multi-view estimate of ``cfg``; return the summary (also ``estimate.json``).
+
+    ``log(msg)``: stage messages (stderr in the command); ``bar``: a tqdm-like factory for the
+    progress bar (stderr); ``predictor``: a :class:`~ebr_mitsuba.model.predictor.ViewsPredictor`
+    already loaded (None: ``cfg.checkpoint``)."""
+    from .pipeline import ESTIMATE_FORMAT
+
+    log = log or (lambda msg: None)
+    stage = outputs.Stages(cfg.out)  # the clock; --out checked
+    out, timings = stage.out, stage.timings
+    path = model_path(cfg.checkpoint) if predictor is None else None
+
     steps = VIEW_COUNT + 4
-    progress = bar(total=steps, desc="estimate --views", unit="step") if bar is not None else None
+    progress = None  # opened at the first step: the inputs and the model are checked before
 
     def tick(what: str) -> None:
-        if progress is not None:
-            progress.set_postfix_str(what)
-            progress.update(1)
+        nonlocal progress
+        if bar is None:
+            return
+        if progress is None:
+            progress = bar(total=steps, desc="estimate --views", unit="step")
+        progress.set_postfix_str(what)
+        progress.update(1)
 
     try:
-        t0 = time.perf_counter()
-        log(f"rectifying the {VIEW_COUNT} views onto the sample grid")
-        views = rectify_views(shots, camera_views, work, tick)
-        stage("rectify", t0)
-
-        t0 = time.perf_counter()
-        log(f"estimating the maps and the per-pixel lighting at {grid}x{grid} (working size {work}x{work})")
-        names = [s.name for s in shots]
-        to_reference = [DEFAULT_FLASH_INTENSITY / k for k in known] if known else [1.0] * VIEW_COUNT
-        stack = np.stack([views.images[n] * np.float32(f) for n, f in zip(names, to_reference)])
-        wts = np.stack([views.weights[n] for n in names])
-        if work != grid:
-            stack = np.stack([resize_area(v, (grid, grid)) for v in stack])
-            wts = np.stack([resize_area(w[..., None], (grid, grid))[..., 0] >= 1 - 1e-6 for w in wts])
-        pred = predictor.predict_views(
-            stack.astype(np.float32), wts.astype(np.float32), [s.camera for s in shots]
-        )
-        maps = pred.maps if work == grid else resample_svbrdf(pred.maps, work)
-        if maps.shape != (work, work):
-            raise RuntimeError(f"the network returned {maps.shape} maps for a {work}x{work} grid")
-        tick("network")
-        stage("network", t0)
-
-        t0 = time.perf_counter()
-        log(f"re-rendering the {VIEW_COUNT} views")
-        flash, env = rerender_parts(maps, pred.lighting, shots, work)
+        est = estimate_views(cfg, predictor, log=log, tick=tick, stage=stage)
+        shots, views, work, names = est.shots, est.views, est.work, est.names
+        known, warnings = est.known, est.warnings
         photos = [views.images[n] for n in names]
-        masks = [(views.weights[n] > 0) & ~views.saturated[n] for n in names]
-        factors = [k / DEFAULT_FLASH_INTENSITY for k in known] if known else None
-        a, b = fit_scales(photos, flash, env, masks, factors)
-        renders, errors = {}, {}
-        for k, n in enumerate(names):
-            r = (a[k] * flash[k] + b * env[k]) * views.weights[n][..., None]
-            renders[n] = r.astype(np.float32)
-            errors[n] = image_errors(r, photos[k], masks[k])
+        renders = est.renders()
+        errors = {
+            n: image_errors(renders[n], photos[k], m) for k, (n, m) in enumerate(zip(names, est.masks()))
+        }
         errors["mean"] = {
             key: float(np.mean([errors[n][key] for n in names])) for key in ("rmse", "rel_rmse")
         }
-        lighting = pred.lighting.scaled(b)
+        lighting = est.lighting
         intensities = {
-            n: (a[k] * DEFAULT_FLASH_INTENSITY, known_source if known else "fitted")
+            n: (est.a[k] * DEFAULT_FLASH_INTENSITY, est.known_source if known else "fitted")
             for k, n in enumerate(names)
         }
-        tick("re-render")
-        stage("rerender", t0)
+        folder = Path(cfg.views)
+        geometry = folder / (CAPTURE_JSON if (folder / CAPTURE_JSON).is_file() else SAMPLE_JSON)
 
         summary = {
             "format": ESTIMATE_FORMAT,
@@ -657,9 +773,9 @@ def run_multiview(
                 "highlight": None,
                 "saturated_fraction": views.saturated_fraction,
                 "warnings": list(warnings),
-                "geometry": str(Path(cfg.views) / CAPTURE_JSON),
+                "geometry": str(geometry),
             },
-            "model_grid": grid,
+            "model_grid": est.grid,
             "resolution": work,
             "tiles": 1,
             "tile": work,
@@ -667,19 +783,19 @@ def run_multiview(
             "render_mode": "per-pixel SGs",
             "flash": {n: {"intensity": float(v), "source": src} for n, (v, src) in intensities.items()},
             "exposure": {
-                "to_reference": dict(zip(names, to_reference)),
-                "source": known_source or "none (the reference exposure assumed)",
+                "to_reference": dict(zip(names, est.to_reference)),
+                "source": est.known_source or "none (the reference exposure assumed)",
             },
             "lobes": lighting.num_sgs,
             "lighting": {
                 "per_pixel_sgs": lighting.num_sgs,
                 "grid": list(lighting.shape),
-                "scale": float(b),
+                "scale": float(est.b),
                 "centre_pixel": "env.json",
             },
             "rerender_error": {"network": errors, "refined": None},
             "refine": None,
-            "prediction_timings": {k: round(v, 3) for k, v in pred.timings.items()},
+            "prediction_timings": {k: round(v, 3) for k, v in est.prediction.timings.items()},
             "flash_fit": None,
             "warnings": list(warnings),
             "timings": timings,
@@ -687,11 +803,12 @@ def run_multiview(
 
         t0 = time.perf_counter()
         log(f"writing {out}")
+        maps = est.maps
         with atomic_dir(out) as tmp:
             files = outputs.write_maps(maps, tmp / "maps", "ebr estimate --views (MAIR network)")
             files += outputs.write_shots(tmp, dict(zip(names, photos)), renders)
             files += write_weights(tmp, views.weights)
-            files += write_lighting(tmp, pred.lighting, b)
+            files += write_lighting(tmp, est.prediction.lighting, est.b)
             centre = shots[VIEW_COUNT // 2]
             files += outputs.write_novel(
                 maps, lighting.pixel_environment(), intensities[centre.name][0], tmp, float(centre.camera[2])
@@ -712,6 +829,8 @@ __all__ = [
     "TRAIN_HINT",
     "VIEW_COUNT",
     "ViewShot",
+    "ViewsEstimate",
+    "estimate_views",
     "fit_scales",
     "load_mair",
     "read_views",

@@ -392,8 +392,11 @@ class MAIRPredictor:
     the reference exposure, clamped at 0 and times its in-frame weight, with the per-pixel view
     directions to its camera (:func:`ebr_mitsuba.nets.mair_views.view_direction_maps`).
 
-    ``grid``: ``bundle.resolution``; ``views``: 9. The networks are fully convolutional: views of
-    another square size run too (at the scale the model was not trained at)."""
+    ``grid``: ``bundle.resolution``; ``views``: 9, the views a capture must provide. The network
+    reads those its config selects (``MAIRConfig.views``,
+    :func:`ebr_mitsuba.nets.mair_views.view_indices`): all of them, or for a centre-only model
+    (``views = "centre"``) the centre camera's alone. The networks are fully convolutional: views
+    of another square size run too (at the scale the model was not trained at)."""
 
     def __init__(self, bundle: ModelBundle):
         if bundle.kind != "mair":
@@ -408,14 +411,20 @@ class MAIRPredictor:
 
     @property
     def views(self) -> int:
+        """The views a capture must provide (9), whichever of them the network reads."""
         return 9
 
     @torch.no_grad()
     def predict_views(self, views, weights=None, cameras=None) -> ViewsPrediction:
         """Maps (G, G) and :class:`~.predictor.PixelLighting` from (N, G, G, 3) views (see
-        :meth:`~.predictor.ViewsPredictor.predict_views`)."""
+        :meth:`~.predictor.ViewsPredictor.predict_views`): ``weights`` (N, G, G) or None,
+        ``cameras`` N × 3 or None (the views in :func:`~ebr_mitsuba.nets.mair_views.multiview_shots`
+        order). The network reads the views its config selects: all N, or for ``views =
+        "centre"`` the one whose camera is the centre camera (matched by position when
+        ``cameras`` is given, else index 4 of that order); maps and lighting come back as for a
+        model that reads all nine."""
         from ..geometry import Shot
-        from ..nets.mair_views import multiview_shots, view_direction_maps
+        from ..nets.mair_views import multiview_shots, view_direction_maps, view_indices
 
         t0 = time.perf_counter()
         v = np.asarray(views, dtype=np.float32)
@@ -437,6 +446,8 @@ class MAIRPredictor:
         wt = np.ones((n, h, w), np.float32) if weights is None else np.asarray(weights, np.float32)
         if wt.shape != (n, h, w):
             raise InputError(f"predict_views: weights have shape {wt.shape}; expected {(n, h, w)}")
+        keep = view_indices(self.bundle.mair.config.views, [s.camera for s in shots])
+        v, wt, shots = v[keep], wt[keep], [shots[k] for k in keep]
         dev = self.bundle.device
         x = torch.from_numpy(np.maximum(v, 0.0) * wt[..., None]).permute(0, 3, 1, 2)[None].to(dev)
         wts = torch.from_numpy(np.ascontiguousarray(wt))[:, None][None].to(dev)

@@ -273,7 +273,7 @@ class ViewsPredictor(Protocol):
 
     @property
     def views(self) -> int:
-        """N: how many views the model was trained with (9, the 3×3 grid)."""
+        """N: how many views a capture must provide (9, the 3×3 grid), whichever of them the model reads."""
         ...
 
     def predict_views(

@@ -15,7 +15,10 @@ preset      what for                                                        para
 counts per stage and for the ``mean`` fusion too (``docs/mair.md``).
 
 :class:`MAIRConfig` holds the options that are not sizes: the number of SGs per pixel, the fusion
-(``attention`` or the ``mean`` pooling ablation), the SG sharpness range and the input transform.
+(``attention`` or the ``mean`` pooling ablation), the views of the 3×3 capture the model reads
+(``all`` nine, or the ``centre`` one alone: the other ablation of issue 13; chosen by
+:func:`~.mair_views.selected_shots` and :func:`~.mair_views.view_indices`), the SG sharpness range
+and the input transform.
 Both read TOML tables through :func:`ebr_mitsuba.typedconfig.from_dict` (unknown keys rejected; a
 size may be given by preset name); their option tables are generated from the field metadata.
 """
@@ -30,6 +33,7 @@ from .nafnet import SIZE_PRESETS, NAFNetSize
 from .transforms import LOG_EPS
 
 FUSIONS = ("attention", "mean")
+VIEW_SETS = ("all", "centre")  # MAIRConfig.views (nets/mair_views.view_indices reads them)
 
 
 @config
@@ -136,6 +140,12 @@ class MAIRConfig:
         "attention",
         "attention (MVANet) or mean (the ablation: per-view MLPs, weighted mean pool)",
         choices=FUSIONS,
+    )
+    views: str = option(
+        "all",
+        "views of the 3×3 capture the model reads: all 9, or centre (the ablation: the camera at (0, 0) "
+        "alone, N = 1, in training and prediction)",
+        choices=VIEW_SETS,
     )
     sharpness_range: tuple[float, float] = option(
         (1.0, 2000.0), "λ_min, λ_max of the per-pixel SGs (log-uniform in between, via a sigmoid)", above=0

@@ -4,20 +4,25 @@ Pixel (i, j) of every (rectified or texture-space) view shows the sample-grid po
 :mod:`ebr_mitsuba.geometry`; a view differs from the others in its per-pixel direction
 ``v_ij = normalise(camera − p_ij)`` (:func:`view_direction_maps`) and in which points its camera
 framed (:func:`in_frame_weights`). :func:`normalised_weights` turns per-view weights w into the
-pooling weights every fusion uses.
+pooling weights every fusion uses. :func:`view_indices` and :func:`selected_shots` pick the views a
+model reads (``MAIRConfig.views``: all nine, or the centre camera's alone).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 import torch
 
 from ..errors import InputError
 from ..geometry import Shot, pixel_positions, setup_shots, view_directions
+from .mair_config import VIEW_SETS
 
 WEIGHT_FLOOR = 1e-6  # w is clamped to this: a pixel no view saw falls back to uniform weights
+CENTRE_XY = (0.0, 0.0)  # (x, y) of the grid's centre camera, straight above the sample centre
+CENTRE_TOLERANCE = 0.3  # half the grid spacing: the centre camera is the one this close to CENTRE_XY
 
 
 # ------------------------------------------------------------------------------------ geometry
@@ -26,6 +31,39 @@ WEIGHT_FLOOR = 1e-6  # w is clamped to this: a pixel no view saw falls back to u
 def multiview_shots() -> list[Shot]:
     """The 9 shots of ``--setup multi-view`` (row-major over the 3×3 grid, ``view{a}{b}_flash``)."""
     return setup_shots("multi-view")
+
+
+def view_indices(views: str, cameras: Sequence[Sequence[float]] | None = None) -> list[int]:
+    """Indices of the views a model with ``MAIRConfig.views = views`` reads, among the N views
+    whose camera positions are ``cameras`` (N × 3; None: those of :func:`multiview_shots`, in its
+    order).
+
+    ``"all"``: every view, in order; ``"centre"``: the one view whose camera is nearest in (x, y)
+    to the centre camera :data:`CENTRE_XY` (index 4 of :func:`multiview_shots`, ``view11_flash``).
+    Raises :class:`InputError` for another ``views``, or for ``"centre"`` when no camera is within
+    :data:`CENTRE_TOLERANCE` of the centre.
+    """
+    if views not in VIEW_SETS:
+        raise InputError(f"MAIR: views: got {views!r}; use one of {', '.join(VIEW_SETS)}")
+    cams = [s.camera for s in multiview_shots()] if cameras is None else cameras
+    xy = np.asarray(cams, np.float64).reshape(-1, 3)[:, :2]
+    if views == "all":
+        return list(range(len(xy)))
+    off = np.linalg.norm(xy - np.asarray(CENTRE_XY), axis=1)
+    k = int(np.argmin(off)) if len(off) else -1
+    if k < 0 or off[k] > CENTRE_TOLERANCE:
+        raise InputError(
+            f"MAIR: views = 'centre' needs a camera within {CENTRE_TOLERANCE} of (x, y) = {CENTRE_XY}; "
+            f"the {len(xy)} cameras given have none"
+        )
+    return [k]
+
+
+def selected_shots(views: str) -> list[Shot]:
+    """The shots of :func:`multiview_shots` that a model with ``MAIRConfig.views = views`` reads,
+    in that order (:func:`view_indices`): all 9, or the centre camera's alone."""
+    shots = multiview_shots()
+    return [shots[k] for k in view_indices(views)]
 
 
 def view_direction_maps(height: int, width: int, shots: list[Shot] | None = None) -> torch.Tensor:

@@ -238,13 +238,16 @@ class CascadePhase(Phase):
 
 @dataclass(frozen=True)
 class MultiViewInputs:
-    """What a MAIR phase reads besides :class:`PhaseInputs`: the 3×3 capture's geometry on the
-    data set's grid (:mod:`ebr_mitsuba.nets.mair_views`) and g4's direction grid.
+    """What a MAIR phase reads besides :class:`PhaseInputs`: the geometry of the views of the 3×3
+    capture the model reads, on the data set's grid (:mod:`ebr_mitsuba.nets.mair_views`), and g4's
+    direction grid.
 
-    ``shots``: the data set's index of each view, in :func:`~ebr_mitsuba.nets.mair_views.multiview_shots`
-    order; ``directions`` (N, 3, H, W) and ``weights`` (N, 1, H, W) the views' per-pixel directions
-    and in-frame weights; ``cameras`` (N, 3) the camera (= flash) positions; ``lighting_directions``
-    (D, 3) where g4 compares the incident radiance.
+    The N views are those ``MAIRConfig.views`` selects
+    (:func:`~ebr_mitsuba.nets.mair_views.selected_shots`): all 9 (``"all"``) or the centre camera's
+    alone (``"centre"``, N = 1), in :func:`~ebr_mitsuba.nets.mair_views.multiview_shots` order.
+    ``shots``: the data set's index of each of them; ``directions`` (N, 3, H, W) and ``weights``
+    (N, 1, H, W) their per-pixel directions and in-frame weights; ``cameras`` (N, 3) their camera
+    (= flash) positions; ``lighting_directions`` (D, 3) where g4 compares the incident radiance.
     """
 
     shots: tuple[int, ...]
@@ -254,11 +257,12 @@ class MultiViewInputs:
     lighting_directions: torch.Tensor
 
     @classmethod
-    def build(cls, data: TrainingData, loss: MAIRLossConfig, device) -> MultiViewInputs:
+    def build(cls, data: TrainingData, loss: MAIRLossConfig, device, *, views: str) -> MultiViewInputs:
+        """The inputs of the views ``views`` (``MAIRConfig.views``) selects."""
         from ..nets.mair_lighting import hemisphere_directions
-        from ..nets.mair_views import in_frame_weights, multiview_shots, view_direction_maps
+        from ..nets.mair_views import in_frame_weights, selected_shots, view_direction_maps
 
-        shots = multiview_shots()
+        shots = selected_shots(views)
         h, w = data.maps.shape[-2:]
         return cls(
             tuple(data.shot(s.name) for s in shots),
@@ -301,9 +305,11 @@ def incident_radiance(lobes: Sequence[torch.Tensor], directions: torch.Tensor) -
 
 class MAIRPhase(Phase):
     """One of MAIR's stages (``normal``, ``lighting``, ``brdf``: :data:`MAIRModel.STAGES`), trained
-    in turn with the others frozen, on the 9 views of each multi-view sample (``views``, a
-    :class:`MultiViewInputs`). ``top`` is the module whose forward runs: the normal net, the
-    lighting net, or the whole model for ``brdf``; ``mair`` the :class:`~ebr_mitsuba.nets.MAIRModel`.
+    in turn with the others frozen, on the views of each multi-view sample the model reads
+    (``views``, a :class:`MultiViewInputs`: all 9, or the centre one for ``MAIRConfig.views =
+    "centre"``; every loss, the re-render loss included, sees those N views only). ``top`` is the
+    module whose forward runs: the normal net, the lighting net, or the whole model for ``brdf``;
+    ``mair`` the :class:`~ebr_mitsuba.nets.MAIRModel`.
 
     Losses (weights of :class:`~ebr_mitsuba.model.config.MAIRLossConfig`):
 
@@ -409,9 +415,8 @@ def build_phase(plan: PhasePlan, inputs: PhaseInputs, bundle, caches) -> Phase:
     filled and loaded here when first needed — stage 1 only with exemplars)."""
     name = plan.name
     if bundle.kind == "mair":
-        return MAIRPhase(
-            plan, inputs, bundle.mair, MultiViewInputs.build(inputs.data, inputs.loss, inputs.device)
-        )
+        views = MultiViewInputs.build(inputs.data, inputs.loss, inputs.device, views=bundle.mair.config.views)
+        return MAIRPhase(plan, inputs, bundle.mair, views)
     if name == "lighting":
         return LightingPhase(plan, inputs, bundle.lighting)
     if name == "dualloss":
