@@ -77,3 +77,22 @@ def load_sentence(cores: float | None) -> str:
         f"Other processes used {cores:.2f} cores on average during the runs: the machine was shared, "
         "rerun on a quiet one for the documented numbers."
     )
+
+
+def named_runs(var: str, hint: str, required: bool = True) -> list[tuple[str, Path]]:
+    """The training runs named in ``$var`` (``NAME=RUN_DIR`` separated by ``;``), in order, each
+    with ``RUN_DIR/model.pt``; an :class:`~ebr_mitsuba.errors.InputError` ending in ``hint`` for a
+    malformed entry, or for none at all when ``required``."""
+    from ..errors import InputError
+
+    spec = os.environ.get(var, "").strip()
+    out = []
+    for part in filter(None, (p.strip() for p in spec.split(";"))):
+        name, sep, path = part.partition("=")
+        run = Path(path.strip())
+        if not sep or not name.strip() or not (run / "model.pt").is_file():
+            raise InputError(f"${var}: '{part}' is not NAME=RUN_DIR with RUN_DIR/model.pt; {hint}")
+        out.append((name.strip(), run))
+    if required and not out:
+        raise InputError(f"${var} names no run; {hint}")
+    return out

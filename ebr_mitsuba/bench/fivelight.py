@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ._common import machine
+from ._common import machine, named_runs
 from .ablation import ABLATION_FILE, PAPER, ablation_lines, ablation_table, models_section, read_ablation
 from .models import _recording, _row, _sheet, _small, training_summary
 
@@ -70,18 +70,9 @@ def unavailable() -> str | None:
 
 
 def _runs() -> list[tuple[str, Path]]:
-    spec = os.environ.get("EBR_FIVELIGHT_RUNS", "").strip()
-    out = []
-    for part in filter(None, (p.strip() for p in spec.split(";"))):
-        name, sep, path = part.partition("=")
-        run = Path(path.strip())
-        if not sep or not name.strip() or not (run / "model.pt").is_file():
-            raise InputError(
-                f"$EBR_FIVELIGHT_RUNS: '{part}' is not NAME=RUN_DIR with RUN_DIR/model.pt; give the "
-                "runs of 'ebr train configs/dualloss_real*.toml'"
-            )
-        out.append((name.strip(), run))
-    return out
+    return named_runs(
+        "EBR_FIVELIGHT_RUNS", "give the runs of 'ebr train configs/dualloss_real*.toml'", required=False
+    )
 
 
 def lights_predictor(bundle, data: Path, flash_fit: bool = True):

@@ -1,6 +1,6 @@
 """Measure speed against error and write the tables and plots (docs/bench/ in a checkout).
 
-  ebr bench [renderer|generate|extract-sg|estimate|models|fivelight|all] [--out DIR] [--quick] [--json]
+  ebr bench [renderer|generate|extract-sg|estimate|models|fivelight|mair|all] [--out DIR] [--quick] [--json]
 
 Each benchmark writes ``OUT/<name>.md`` (a Markdown table with the reference it was measured
 against, and the PNG plots it links) and returns its path:
@@ -20,11 +20,16 @@ against, and the PNG plots it links) and returns its path:
 * ``fivelight``: the five-light dual-loss models, the loss ablation (dual, parameter only, rendering
   only) and the baselines on the five-light captures of the test split, beside the EBREnv model on
   the same materials (writes ``fivelight.md``; needs ``EBR_FIVELIGHT_DATA``; optionally
-  ``EBR_FIVELIGHT_RUNS``, ``EBR_TRAIN_DATA``, ``EBR_SPLIT_DATA``).
+  ``EBR_FIVELIGHT_RUNS``, ``EBR_TRAIN_DATA``, ``EBR_SPLIT_DATA``);
+* ``mair``: the multi-view MAIR models and their fusion ablation (attention, mean pooling, centre
+  view only) on the 3×3 captures of the test split, their per-pixel lighting error, an object
+  insertion against the truth, beside the EBREnv model on the same materials (writes
+  ``mair_eval.md``; needs ``EBR_MAIR_DATA`` and ``EBR_MAIR_RUNS``; optionally ``EBR_TRAIN_DATA``,
+  ``EBR_SPLIT_DATA``).
 
 Default ``--out``: inside a checkout of ebr-mitsuba (the current directory or one above it holds
-the project's ``pyproject.toml``) the checkout's ``docs/bench`` (``docs`` for ``models`` and
-``fivelight``), the pages the documentation links; anywhere else ``./ebr-bench``, so that a run
+the project's ``pyproject.toml``) the checkout's ``docs/bench`` (``docs`` for ``models``,
+``fivelight`` and ``mair``), the pages the documentation links; anywhere else ``./ebr-bench``, so that a run
 elsewhere never writes into the installed package's source tree.
 
 ``--out`` and ``--quick`` are the fields of :class:`BenchConfig` (flags, defaults and help generated
@@ -53,7 +58,7 @@ HELP = "measure speed against error; write the benchmark pages (docs/bench/*.md 
 
 # Every benchmark name the toolkit plans; `available()` is the subset this version has (a module in
 # ebr_mitsuba.bench). Only those are listed in --help.
-BENCHMARKS = ("renderer", "generate", "extract-sg", "estimate", "models", "fivelight")
+BENCHMARKS = ("renderer", "generate", "extract-sg", "estimate", "models", "fivelight", "mair")
 OUTSIDE_CHECKOUT = Path("ebr-bench")
 PROJECT = "ebr-mitsuba"
 
@@ -67,7 +72,7 @@ class BenchConfig:
         None,
         "output folder",
         metavar="OUT",
-        shown=f"docs/bench of the checkout you are in, docs for 'models' and 'fivelight'; "
+        shown=f"docs/bench of the checkout you are in, docs for 'models', 'fivelight' and 'mair'; "
         f"./{OUTSIDE_CHECKOUT} outside a checkout",
     )
     quick: bool = option(False, "reduced sizes, under a minute each: a smoke test")

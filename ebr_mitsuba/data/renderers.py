@@ -98,16 +98,23 @@ class _Mitsuba:
         return [self.render(exemplar_material(size, r), shot, s) for r, s in zip(roughness, seeds)]
 
 
-def _rotated_envmap_dict(env: EnvDraw) -> dict:
+def rotated_envmap_dict(map_path: str, rotation: float, scale: float) -> dict:
+    """The Mitsuba ``envmap`` emitter of the equirectangular map at ``map_path`` turned by
+    ``rotation`` radians about z and scaled by ``scale``: a sample's environment as it was rendered
+    (``sample.json``'s ``env``: ``map.path``, ``rotation``, ``scale``)."""
     import mitsuba as mi
 
     from ..envmap import ENVMAP_TO_WORLD, envmap_emitter_dict
 
-    c, s = math.cos(env.rotation), math.sin(env.rotation)
+    c, s = math.cos(rotation), math.sin(rotation)
     rot = np.array([[c, -s, 0.0, 0.0], [s, c, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
-    d = envmap_emitter_dict(equirect_map(env.map_path), scale=env.scale)
+    d = envmap_emitter_dict(equirect_map(map_path), scale=scale)
     d["to_world"] = mi.ScalarTransform4f((rot @ ENVMAP_TO_WORLD).tolist())
     return d
+
+
+def _rotated_envmap_dict(env: EnvDraw) -> dict:
+    return rotated_envmap_dict(env.map_path, env.rotation, env.scale)
 
 
 def _fast_seed(seed: int) -> int:

@@ -1,0 +1,512 @@
+"""``ebr bench mair``: the multi-view (MAIR) models of issue 13 on the 3×3 captures of the fixed
+test split; writes ``mair_eval.md`` with ``mair_eval.jpg`` (views, maps, per-pixel lighting and an
+insertion of one test sample) and ``mair_eval_maps.jpg`` (contact sheet).
+
+Test captures: ``configs/data_real_multiview_test.toml`` (the real material sets and HDR maps of
+``scenes/test_split.toml``, the seed and draws of ``configs/data_real_test.toml``; the nine camera
+images of ``ebr capture --setup multi-view``, path traced by Mitsuba at 256²). Every model sees
+each sample as ``ebr estimate --views SAMPLE_DIR`` does (:func:`ebr_mitsuba.estimate.multiview.
+estimate_views`: rectification onto the sample grid, the known flash intensity in photo units).
+Figures, all on the same samples:
+
+* **maps**: per-map RMSE and their mean, re-render RMSE and SSIM under 30 seeded random lights and
+  views (:func:`ebr_mitsuba.evaluation.evaluate.evaluate`, the protocol of ``ebr bench models``)
+  for every run of ``EBR_MAIR_RUNS`` (``name=RUN_DIR`` separated by ``;``; the ablation of
+  ``configs/mair_small*.toml``: attention, mean pooling, centre view only), the first run's model
+  fed its centre view alone (no retraining), the oracle constant (each sample's own mean maps),
+  with ``EBR_TRAIN_DATA`` the training set's mean maps, and with ``EBR_SPLIT_DATA`` (the near flash
+  / no-flash test split) the shipped EBREnv model as ``ebr estimate`` runs it on the same materials;
+* **lighting**: MAIR's g4, the scale-invariant log-MSE (:func:`ebr_mitsuba.nets.losses.
+  scale_invariant_log_mse`) of each pixel's incident radiance on the 8 × 16 hemisphere grid of
+  :func:`~ebr_mitsuba.nets.mair_lighting.hemisphere_directions` against the truth: the sample's
+  environment lobes (``env.json``; every pixel of the unoccluded plane sees the whole distant
+  environment), beside the same error of a constant radiance (a lighting estimate that knows
+  nothing);
+* **insertion**: ``ebr insert``'s default object (a grey diffuse sphere on the sample) rendered by
+  Mitsuba into the first run's estimate (its maps, the centre pixel's lobes in photo units) and
+  into the truth (the true maps, the true environment as rendered: the rotated, scaled HDR map, at
+  the sample's exposure), and the truth again with another seed: the insertion's relative RMSE
+  against the truth's own noise floor, on the first :data:`INSERT_SAMPLES` test samples.
+
+Inputs: ``EBR_MAIR_DATA`` names the generated multi-view test set, ``EBR_MAIR_RUNS`` the training
+runs (the page's first section has the commands).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ._common import machine, named_runs
+from .models import _recording, _row, _sheet, _small, training_summary
+
+DEFAULT_OUT = "docs"
+PAGE = "mair_eval.md"
+QUICK_LIMIT = 2
+CENTRE_GAIN = 0.15  # issue 13: attention's mean per-map RMSE at least this far below the centre view's
+MEAN_GAIN = 0.05  # ... and this far below mean pooling's
+INSERT_SAMPLES = 4  # insertions on the first test samples (each: three Mitsuba renders)
+INSERT_RES, INSERT_SPP = 128, 256
+QUICK_INSERT = (1, 64, 16)  # samples, resolution, spp of --quick
+CENTRE_ONLY = "first run, centre view only (no retraining)"
+RUNS_HINT = "give the runs of 'ebr train configs/mair_small*.toml' (docs/mair_eval.md)"
+REGENERATE = """\
+export EBR_DATA_DIR=../shared/data EBR_MAIR_DATA=/tmp/ebr-data/real_mv_test \\
+       EBR_TRAIN_DATA=/tmp/ebr-data/real_mv_train
+ebr generate configs/data_real_multiview_test.toml --out $EBR_MAIR_DATA --workers 2
+ebr generate configs/data_real_multiview_train.toml --out $EBR_TRAIN_DATA --workers 2
+for c in mair_small mair_small_mean mair_small_centre; do
+  ebr train configs/$c.toml --out /tmp/ebr-runs/$c
+done
+R=/tmp/ebr-runs
+export EBR_MAIR_RUNS="attention=$R/mair_small;mean pooling=$R/mair_small_mean"
+EBR_MAIR_RUNS+=";centre view only=$R/mair_small_centre"
+EBR_SPLIT_DATA=/tmp/ebr-data/real_test ebr bench mair  # this page (EBREnv on the near split)"""
+
+
+def unavailable() -> str | None:
+    data = os.environ.get("EBR_MAIR_DATA")
+    if not data or not Path(data).is_dir():
+        return "EBR_MAIR_DATA does not name a multi-view test set (docs/mair_eval.md)"
+    if not os.environ.get("EBR_MAIR_RUNS", "").strip():
+        return "EBR_MAIR_RUNS names no MAIR training run (docs/mair_eval.md)"
+    return None
+
+
+class CentreViewOnly:
+    """A :class:`~ebr_mitsuba.model.predictor.ViewsPredictor` feeding ``inner`` the centre camera's
+    view alone (:func:`~ebr_mitsuba.nets.mair_views.view_indices`): a nine-view model asked what one
+    view tells it, out of its training distribution."""
+
+    def __init__(self, inner):
+        self.inner = inner
+
+    @property
+    def grid(self) -> int:
+        return self.inner.grid
+
+    @property
+    def views(self) -> int:
+        return self.inner.views
+
+    def predict_views(self, views, weights=None, cameras=None):
+        from ..nets.mair_views import view_indices
+
+        (k,) = view_indices("centre", cameras)
+        w = None if weights is None else weights[k : k + 1]
+        cams = None if cameras is None else [cameras[k]]
+        return self.inner.predict_views(views[k : k + 1], w, cams)
+
+
+@dataclass
+class Recorded:
+    """What a views predictor leaves per sample besides its maps: the g4 lighting errors of its
+    lobes and of a constant, and for the first samples the estimate itself (for the insertions
+    and the figure)."""
+
+    lighting: list[float] = field(default_factory=list)
+    constant: list[float] = field(default_factory=list)
+    estimates: list = field(default_factory=list)
+
+
+def lighting_errors(prediction_lighting, item: dict, rows: int, cols: int) -> tuple[float, float]:
+    """(g4 of the predicted per-pixel lobes, g4 of a constant radiance) against the sample's
+    environment lobes at every pixel (module docstring)."""
+    import torch
+
+    from ..estimate.multiview import _torch_lighting
+    from ..nets.drwrap import lobes_from_padded
+    from ..nets.losses import scale_invariant_log_mse
+    from ..nets.mair_lighting import hemisphere_directions
+    from ..train.phases import incident_radiance
+
+    dirs = hemisphere_directions(rows, cols)
+    g = prediction_lighting.shape[0]
+    pred = _torch_lighting(prediction_lighting, g).radiance_image(dirs)  # (1, 3D, G, G)
+    lobes = lobes_from_padded(item["sg"][None], item["sg_mask"][None])
+    truth = incident_radiance(lobes, dirs).reshape(1, -1, 1, 1).expand_as(pred)
+    with torch.no_grad():
+        return (
+            float(scale_invariant_log_mse(pred, truth)),
+            float(scale_invariant_log_mse(torch.ones_like(truth), truth)),
+        )
+
+
+def views_predictor(predictor, data: Path, record: Recorded, keep: int):
+    """``predict(item, names) -> SVBRDF``: what ``ebr estimate --views SAMPLE_DIR`` makes of each
+    sample with ``predictor``; the lighting errors go to ``record``, and the first ``keep``
+    estimates (:class:`~ebr_mitsuba.estimate.multiview.ViewsEstimate`) too."""
+    from ..data.store import sample_dirname
+    from ..estimate.multiview import MultiViewConfig, estimate_views
+    from ..materials import resample_svbrdf
+    from ..model.config import MAIRLossConfig
+
+    loss = MAIRLossConfig()
+
+    def run(item, names):
+        sample = data / sample_dirname(int(item["index"]))
+        with tempfile.TemporaryDirectory(prefix="ebr-bench-mv-") as tmp:
+            cfg = MultiViewConfig(views=str(sample), out=str(Path(tmp) / "unused"))
+            est = estimate_views(cfg, predictor)
+        mine, const = lighting_errors(est.prediction.lighting, item, loss.lighting_rows, loss.lighting_cols)
+        record.lighting.append(mine)
+        record.constant.append(const)
+        if len(record.estimates) < keep:
+            record.estimates.append(est)
+        size = tuple(item["maps"].shape[1:])
+        return est.maps if est.maps.shape == size else resample_svbrdf(est.maps, size)
+
+    return run
+
+
+def truth_emitter(sample: Path):
+    """``(emitter factory, description)`` of the environment sample ``sample`` was rendered under,
+    in photo units (× the sample's exposure); None for a dark sample."""
+    from ..data.renderers import rotated_envmap_dict
+    from ..scene import sg_emitter_dict
+    from ..sgenv import SGEnvironment
+
+    record = json.loads((sample / "sample.json").read_text())
+    env, exposure = record.get("env") or {}, float(record["camera"]["exposure"])
+    if env.get("type") == "equirect":
+        path, rotation, scale = env["map"]["path"], float(env["rotation"]), float(env["scale"]) * exposure
+        return (lambda: rotated_envmap_dict(path, rotation, scale)), f"{env['map']['name']} (HDR map)"
+    if env.get("lobes"):
+        lobes = SGEnvironment.load(sample / env.get("file", "env.json"))
+        return (lambda: sg_emitter_dict(lobes, exposure)), f"{lobes.num_lobes} SG lobes"
+    return None
+
+
+def insertions(estimates: list, truths: list, samples: list[Path], res: int, spp: int, log=print) -> dict:
+    """The default insertion (module docstring) into each estimate and its truth: per sample the
+    relative RMSE of the estimate's against the truth's, the truth's noise floor (seed 1 against
+    seed 0) and the pictures; skipped for dark samples."""
+    from ..insert import InsertConfig, Plate, exposure, render, scene_dict, side_by_side
+    from ..metrics import rel_rmse
+    from ..scene import sg_emitter_dict
+
+    cfg = InsertConfig(spp=spp, res=res)
+    rows, pictures = [], []
+    for est, truth, sample in zip(estimates, truths, samples):
+        made = truth_emitter(sample)
+        if made is None:
+            continue
+        emitter, described = made
+        fov = est.shots[len(est.shots) // 2].fov
+        env = est.lighting.pixel_environment()
+        plates = {
+            "estimate": Plate(sample, "estimate", est.maps, fov, lambda env=env: sg_emitter_dict(env)),
+            "truth": Plate(sample, "capture", truth, fov, emitter),
+        }
+        log(f"[bench mair] insertion into {sample.name} ({res}², {spp} spp, three renders)")
+        images = {
+            key: render(scene_dict(p, cfg, res, fov=fov), res, spp, seed)
+            for key, p, seed in (
+                ("estimate", plates["estimate"], 0),
+                ("truth", plates["truth"], 0),
+                ("truth, seed 1", plates["truth"], 1),
+            )
+        }
+        err = rel_rmse(images["estimate"], images["truth"])
+        floor = rel_rmse(images["truth, seed 1"], images["truth"])
+        rows.append({"sample": sample.name, "env": described, "rel_rmse": err, "noise_floor": floor})
+        gain = exposure(images["truth"])
+        pictures.append(np.clip(side_by_side(images["estimate"], images["truth"], gain), 0, None))
+    return {"rows": rows, "pictures": pictures, "res": res, "spp": spp}
+
+
+def _figure(est, truth, insertion_picture, path: Path) -> None:
+    """One test sample: its nine rectified views, the truth's and the estimate's maps, the per-pixel
+    lighting of a 4 × 4 grid of pixels and the insertion (estimate | truth | difference × 4)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..estimate.multiview import hemisphere_mosaic
+    from ..fsutil import atomic_path
+    from ..imageio import linear_to_srgb
+
+    views = [est.views.images[n] for n in est.names]
+    gain = 1.0 / max(float(np.percentile(np.stack(views), 99.5)), 1e-6)
+    rowsv = [np.concatenate(views[r * 3 : r * 3 + 3], axis=1) for r in range(3)]
+    mosaic = linear_to_srgb(np.clip(np.concatenate(rowsv, axis=0) * gain, 0, 1))
+    lights = hemisphere_mosaic(est.lighting)
+    light_gain = 1.0 / max(float(np.percentile(lights, 99.5)), 1e-12)
+
+    def tiles(m):
+        return [
+            (m.normal + 1) / 2,
+            linear_to_srgb(np.clip(m.diffuse, 0, 1)),
+            linear_to_srgb(np.clip(m.specular, 0, 1)),
+            np.repeat(np.clip(m.roughness, 0, 1)[..., None], 3, axis=2),
+        ]
+
+    fig = plt.figure(figsize=(12, 6.2))
+    grid = fig.add_gridspec(2, 6)
+    panels = [
+        (grid[0, 0:2], mosaic, "the 9 views, rectified"),
+        (grid[0, 2], linear_to_srgb(np.clip(lights * light_gain, 0, 1)), "lighting, 4×4 pixels"),
+    ]
+    if insertion_picture is not None:
+        ins = linear_to_srgb(np.clip(insertion_picture, 0, 1))
+        panels.append((grid[0, 3:6], ins, "insertion: estimate | truth | |diff| × 4"))
+    names = ("normal", "diffuse", "specular", "roughness")
+    both = [np.concatenate([a, b], axis=0) for a, b in zip(tiles(truth), tiles(est.maps))]
+    for k, (img, name) in enumerate(zip(both, names)):
+        panels.append((grid[1, k], img, f"{name}: truth / estimate"))
+    for spec, img, title in panels:
+        ax = fig.add_subplot(spec)
+        ax.imshow(np.clip(img, 0, 1))
+        ax.set_title(title, fontsize=8)
+        ax.axis("off")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=80, format="jpg", pil_kwargs={"quality": 85})
+    plt.close(fig)
+
+
+def _role(run_dir: Path) -> str:
+    """``attention``, ``mean pooling`` or ``centre view``: what a MAIR run's [model] table makes it."""
+    model = json.loads((run_dir / "config.json").read_text()).get("model", {})
+    if model.get("views") == "centre":
+        return "centre view"
+    return "mean pooling" if model.get("fusion") == "mean" else "attention"
+
+
+def _budget(summary: dict) -> str:
+    phases = summary["phases"]
+    steps = " / ".join(str(phases[p]["steps"]) for p in ("normal", "lighting", "brdf") if p in phases)
+    hours = sum(p["seconds"] for p in phases.values()) / 3600
+    return f"{steps} steps, {hours:.2f} h"
+
+
+def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Path:
+    """Evaluate every predictor on ``$EBR_MAIR_DATA`` and write ``out_dir/mair_eval.md``."""
+    from ..commands._common import progress
+    from ..data.dataset import GeneratedDataset
+    from ..data.store import sample_dirname
+    from ..estimate.multiview import load_mair
+    from ..evaluation.baselines import MeanMaps
+    from ..evaluation.evaluate import _truth, estimate_predictor, evaluate, oracle_predictor
+    from ..fsutil import atomic_write_text
+    from ..model.predict import load_predictor
+
+    reason = unavailable()
+    if reason:
+        raise InputError(reason)
+    data = Path(os.environ["EBR_MAIR_DATA"])
+    ds = GeneratedDataset(data)
+    if ds.dataset.get("config", {}).get("capture", {}).get("setup") != "multi-view":
+        raise InputError(f"$EBR_MAIR_DATA = {data}: not a multi-view data set; {RUNS_HINT}")
+    runs = named_runs("EBR_MAIR_RUNS", RUNS_HINT)
+    out_dir = Path(out_dir)
+    n = len(ds) if not quick else min(QUICK_LIMIT, len(ds))
+    n_insert, res, spp = QUICK_INSERT if quick else (INSERT_SAMPLES, INSERT_RES, INSERT_SPP)
+    n_insert = min(n_insert, n)
+    truths = [_truth(ds[i]) for i in range(n)]
+
+    first = load_mair(runs[0][1] / "model.pt")
+    records: dict[str, Recorded] = {}
+    predictors = []
+    for k, (name, path) in enumerate(runs):
+        model = first if k == 0 else load_mair(path / "model.pt")
+        records[name] = Recorded()
+        predictors.append((name, views_predictor(model, data, records[name], n_insert if k == 0 else 0)))
+    records[CENTRE_ONLY] = Recorded()
+    predictors.append((CENTRE_ONLY, views_predictor(CentreViewOnly(first), data, records[CENTRE_ONLY], 0)))
+    predictors.append(("oracle constant", oracle_predictor))
+    train = os.environ.get("EBR_TRAIN_DATA")
+    if train:
+        mean = MeanMaps.from_dataset(train)
+        predictors.append(
+            ("training-set mean maps", lambda item, names: mean.predict(tuple(item["maps"].shape[1:])))
+        )
+
+    t0 = time.perf_counter()
+    results, sheets = {}, {}
+    for name, predict in predictors:
+        log(f"[bench mair] {name}")
+        store: list = []
+        results[name] = evaluate(_recording(predict, store), data, limit=n, progress=progress)
+        sheets[name] = store
+    ebrenv = None
+    near = os.environ.get("EBR_SPLIT_DATA")
+    if near:
+        log("[bench mair] EBREnv shipped model, ebr estimate (near flash / no-flash test split)")
+        estimate = estimate_predictor(load_predictor(None), near, flash_fit=True)
+        ebrenv = evaluate(
+            lambda item, names: estimate(item, names)["estimate"], near, limit=n, progress=progress
+        )
+    samples = [data / sample_dirname(int(ds[i]["index"])) for i in range(n_insert)]
+    inserted = insertions(records[runs[0][0]].estimates, truths[:n_insert], samples, res, spp, log)
+    seconds = time.perf_counter() - t0
+
+    summaries = {name: training_summary(path) for name, path in runs}
+    roles = {name: _role(path) for name, path in runs}
+    out_dir.mkdir(parents=True, exist_ok=True)
+    _sheet([_small(t) for t in truths], sheets, out_dir / "mair_eval_maps.jpg")
+    est0 = records[runs[0][0]].estimates[0] if records[runs[0][0]].estimates else None
+    if est0 is not None:
+        picture = inserted["pictures"][0] if inserted["pictures"] else None
+        _figure(est0, truths[0], picture, out_dir / "mair_eval.jpg")
+    record = {
+        "date": time.strftime("%Y-%m-%d"),
+        "machine": machine(),
+        "n": n,
+        "quick": quick,
+        "results": {k: {kk: vv for kk, vv in v.items() if kk != "per_sample"} for k, v in results.items()},
+        "ebrenv": None if ebrenv is None else {k: v for k, v in ebrenv.items() if k != "per_sample"},
+        "lighting": {
+            name: {"g4": float(np.mean(r.lighting)), "constant": float(np.mean(r.constant))}
+            for name, r in records.items()
+        },
+        "insertion": inserted["rows"],
+        "roles": roles,
+    }
+    page = _page(record, summaries, runs, ds, seconds, inserted, est0 is not None)
+    atomic_write_text(out_dir / "mair_eval.json", json.dumps(record, indent=1, default=float) + "\n")
+    atomic_write_text(out_dir / PAGE, page)
+    return out_dir / PAGE
+
+
+def acceptance_lines(record: dict) -> list[str]:
+    """The issue's two comparisons of mean per-map RMSE: attention against the centre view only
+    (trained so, or else the attention model fed one view) and against mean pooling."""
+    res, roles = record["results"], record["roles"]
+    by_role = {role: name for name, role in roles.items()}
+    if "attention" not in by_role:
+        return ["(No attention run in EBR_MAIR_RUNS: the acceptance comparisons need one.)", ""]
+    att = res[by_role["attention"]]["per_map_rmse"]["mean"]
+    lines = []
+    centre = by_role.get("centre view", CENTRE_ONLY)
+    for other, gain, what in (
+        (centre, CENTRE_GAIN, "the centre view alone"),
+        (by_role.get("mean pooling"), MEAN_GAIN, "mean pooling"),
+    ):
+        if other is None or other not in res:
+            lines.append(f"- attention against {what}: not measured (no such run in EBR_MAIR_RUNS)")
+            continue
+        v = res[other]["per_map_rmse"]["mean"]
+        drop = (v - att) / v if v > 0 else 0.0
+        ok = drop >= gain
+        lines.append(
+            f"- **attention against {what}** ({other}): mean per-map RMSE {att:.4f} against {v:.4f}, "
+            f"{drop:+.0%} lower (acceptance: at least {gain:.0%} lower) — {'yes' if ok else 'no'}"
+        )
+    return lines + [""]
+
+
+def _page(record, summaries, runs, ds, seconds, inserted, figure: bool) -> str:
+    head = "| predictor | normal | diffuse | roughness | specular | mean | re-render | SSIM | training |"
+    rule = "|---|---:|---:|---:|---:|---:|---:|---:|---|"
+    rows = []
+    for name, res in record["results"].items():
+        s = summaries.get(name)
+        rows.append(_row(name, res, _budget(s) if s else ""))
+    if record["ebrenv"] is not None:
+        rows.append(
+            _row(
+                "EBREnv shipped model, ebr estimate (near flash / no-flash, same materials)", record["ebrenv"]
+            )
+        )
+    cfg = ds.dataset.get("config", {})
+    render = cfg.get("render", {})
+    n, quick = record["n"], record["quick"]
+    lines = [
+        "# Multi-view estimation (MAIR): the models, the fusion ablation, lighting and insertion",
+        "",
+        "Generated by `ebr bench mair` (`ebr_mitsuba/bench/mair.py`); do not edit by hand.",
+        f"Machine: {record['machine']}; {record['date']}; evaluation took {seconds:.0f} s"
+        + (f"; **quick run: {n} samples only, not the documented figures**." if quick else "."),
+        "",
+        f"Test captures: {n} samples of `configs/data_real_multiview_test.toml` — the real material sets "
+        "and HDR maps of the fixed test split (`scenes/test_split.toml`), the same draws as the EBREnv "
+        "model's test split, as the nine camera images of `ebr capture --setup multi-view`, "
+        f"{cfg.get('dataset', {}).get('resolution', '?')}², renderer `{render.get('renderer', '?')}` at "
+        f"{render.get('spp', '?')} spp. Each model sees a sample as `ebr estimate --views SAMPLE_DIR` "
+        "does (rectified onto the sample grid, the known flash intensity). Metrics as in "
+        "[models.md](models.md): per-map RMSE (normals as (n+1)/2, roughness one channel) and their "
+        "mean; re-render RMSE and SSIM under 30 seeded random lights and views. Networks and training: "
+        "[mair.md](mair.md).",
+        "",
+        "```",
+        REGENERATE,
+        "```",
+        "",
+        "## Maps on the multi-view test split",
+        "",
+        head,
+        rule,
+        *rows,
+        "",
+        f"*{CENTRE_ONLY}*: the first run's nine-view model fed the centre camera's view alone, out of "
+        "its training distribution; the fair centre-view comparison is a model trained so "
+        "(`configs/mair_small_centre.toml`, same budget).",
+        "",
+        "## Acceptance figures (issue 13)",
+        "",
+        *acceptance_lines(record),
+        "## Lighting",
+        "",
+        "MAIR's g4 (scale-invariant log-MSE of each pixel's incident radiance on the 8 × 16 hemisphere "
+        "grid) against the sample's environment lobes at every pixel, mean over the test samples; "
+        "beside it the same error of a constant radiance (what a lighting estimate that knows nothing "
+        "scores).",
+        "",
+        "| predictor | g4 of the per-pixel lobes | g4 of a constant |",
+        "|---|---:|---:|",
+        *(f"| {k} | {v['g4']:.4f} | {v['constant']:.4f} |" for k, v in record["lighting"].items()),
+        "",
+        "## Object insertion",
+        "",
+    ]
+    ins = record["insertion"]
+    if ins:
+        ratio = [r["rel_rmse"] / r["noise_floor"] if r["noise_floor"] > 0 else float("inf") for r in ins]
+        lines += [
+            f"`ebr insert`'s default object (a grey diffuse sphere a third of the sample wide) on the "
+            f"first run's estimate of the first {len(ins)} test samples, rendered by Mitsuba at "
+            f"{inserted['res']}², {inserted['spp']} spp, against the same insertion into the truth (true "
+            "maps, the environment as rendered, at the sample's exposure); the noise floor is the truth "
+            "rendered with another seed.",
+            "",
+            "| sample | true environment | insertion rel. RMSE | truth-vs-truth noise floor | ratio |",
+            "|---|---|---:|---:|---:|",
+            *(
+                f"| {r['sample']} | {r['env']} | {r['rel_rmse']:.4f} | {r['noise_floor']:.4f} | {q:.1f} |"
+                for r, q in zip(ins, ratio)
+            ),
+            "",
+        ]
+    else:
+        lines += ["(No insertion: the first samples have no environment.)", ""]
+    if figure:
+        lines += [
+            "![views, maps, lighting and an insertion of one test sample](mair_eval.jpg)",
+            "",
+            "*The first test sample: its nine views rectified onto the sample grid (top left), the first "
+            "run's per-pixel lighting at a 4 × 4 grid of pixels (each hemisphere seen from above), the "
+            "insertion; below, each map of the truth (top) and the estimate (bottom).*",
+            "",
+        ]
+    lines += [
+        "## Contact sheet",
+        "",
+        "Per test sample (rows): the truth's normal, diffuse, specular and roughness, then the same four "
+        f"maps of each predictor in the order {', '.join(record['results'])} (96² thumbnails).",
+        "",
+        "![truth and estimates per test sample](mair_eval_maps.jpg)",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+__all__ = ["CentreViewOnly", "acceptance_lines", "lighting_errors", "run", "truth_emitter", "unavailable"]
