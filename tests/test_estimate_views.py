@@ -283,12 +283,28 @@ def test_bad_views_exit_2_with_one_line(model, capture_mv, tmp_path, capsys):
     )
 
 
-def test_model_and_flag_errors(model, capture_mv, tmp_path, capsys):
+def test_without_checkpoint_the_shipped_model_runs(model, capture_mv, tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(multiview, "shipped_model_path", lambda: model)
+    code, summary, err = estimate_json(capsys, "--views", capture_mv, "--out", tmp_path / "est")
+    assert code == 0, err
+    assert summary["model"]["checkpoint"] == str(model)
+
+
+def test_the_shipped_model_loads():
+    path = multiview.shipped_model_path()
+    assert path.is_file(), "ebr_mitsuba/models/mair_small.pt is missing"
+    model = multiview.load_mair(path)
+    assert model.grid == 32 and model.views == 9
+    assert model.bundle.mair.config.views == "all" and model.bundle.mair.config.fusion == "attention"
+
+
+def test_model_and_flag_errors(model, capture_mv, tmp_path, capsys, monkeypatch):
     import torch
 
     out = tmp_path / "out"
     cases = []
-    # no --checkpoint: no MAIR model is shipped; say how to train one
+    # no --checkpoint and no shipped model: say how to train one
+    monkeypatch.setattr(multiview, "shipped_model_path", lambda: tmp_path / "absent.pt")
     cases.append(([], "none is shipped; train one with 'ebr train configs/mair_small.toml'"))
     # a checkpoint of another kind
     other = torch.load(model, weights_only=True)

@@ -1,11 +1,12 @@
-"""The multi-view estimate (``ebr estimate --views DIR``): the 9 views of the 3×3 capture in;
-SVBRDF maps, per-pixel SG lighting, re-renders of every view and a report out.
+"""The multi-view estimate (``ebr estimate --views DIR``): the 9 views of the 3×3 capture in; SVBRDF
+maps, per-pixel SG lighting, re-renders of every view and a report out.
 
-The network is the MAIR model (:class:`ebr_mitsuba.nets.MAIRModel`, ``docs/mair.md``: a
-checkpoint of ``ebr train`` with ``kind = "mair"``, run through the model's
-:class:`~ebr_mitsuba.model.predict.MAIRPredictor`). No MAIR model is shipped: ``--checkpoint`` is
-required (without it: exit 2 with one line saying how to train one). :func:`run_multiview` writes
-the same kind of output directory as the other estimates
+The network is the MAIR model (:class:`ebr_mitsuba.nets.MAIRModel`, ``docs/mair.md``: a checkpoint
+of ``ebr train`` with ``kind = "mair"``, run through the model's
+:class:`~ebr_mitsuba.model.predict.MAIRPredictor`). The shipped model
+(``ebr_mitsuba/models/mair_small.pt``, ``configs/mair_small.toml``) runs when ``--checkpoint`` is
+not given; without one ``--checkpoint`` is required (without it: exit 2 with one line saying how to
+train one). :func:`run_multiview` writes the same kind of output directory as the other estimates
 (:func:`ebr_mitsuba.estimate.pipeline.run_estimate`, :func:`.fivelight.run_fivelight`), with the
 same writers (:mod:`.outputs`, :mod:`.report`) and the same atomic directory: complete or not at
 all, an earlier estimate directory replaced, anything else refused.
@@ -113,6 +114,7 @@ from .rectify import rectify
 from .resample import working_size
 
 VIEW_COUNT = 9
+SHIPPED_MAIR_MODEL = "mair_small.pt"  # in ebr_mitsuba/models/ (configs/mair_small.toml), when shipped
 SETUP = "multi-view"
 POSITION_WARN = 0.05  # world units (the sample is 2 wide) from the training camera positions
 HEMISPHERE_GRID = 4  # lighting/hemispheres.png: the lighting of GRID × GRID pixels
@@ -140,7 +142,7 @@ class MultiViewConfig:
     )
     out: str = out_option()
     checkpoint: str | None = checkpoint_option(
-        'MAIR model checkpoint (ebr train, kind = "mair")', "none shipped: required"
+        'MAIR model checkpoint (ebr train, kind = "mair")', "the shipped ebr_mitsuba/models/mair_small.pt"
     )
     flash_intensity: float | None = intensity_option(
         "every view's flash intensity in W/sr at the views' exposure"
@@ -169,10 +171,20 @@ class ViewShot:
 # -- the model --------------------------------------------------------------------------------------
 
 
+def shipped_model_path() -> Path:
+    """Where the shipped multi-view (MAIR) model lives (:mod:`ebr_mitsuba.models`; it may be absent)."""
+    from importlib import resources
+
+    return Path(str(resources.files("ebr_mitsuba.models").joinpath(SHIPPED_MAIR_MODEL)))
+
+
 def model_path(checkpoint: str | None) -> Path:
-    """``checkpoint``; :class:`InputError` when it is not given (no MAIR model is shipped) or missing."""
+    """``checkpoint``, or the shipped MAIR model; :class:`InputError` when neither exists."""
     if checkpoint is None:
-        raise InputError(f"--views needs a multi-view (MAIR) model and none is shipped; {TRAIN_HINT}")
+        path = shipped_model_path()
+        if not path.is_file():
+            raise InputError(f"--views needs a multi-view (MAIR) model and none is shipped; {TRAIN_HINT}")
+        return path
     path = Path(checkpoint)
     if not path.is_file():
         raise InputError(

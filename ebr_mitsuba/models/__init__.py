@@ -3,4 +3,8 @@
 ``ebrenv_small.pt``: the EBREnv lighting net + cascade of ``configs/train_small.toml`` (NAFNet
 ``small`` size, 64² grid, float16 weights), loaded by
 :func:`ebr_mitsuba.model.predict.load_model` when no checkpoint is given.
+``dualloss_small.pt``: the five-light dual-loss U-Net of ``configs/dualloss_real.toml``, used by
+``ebr estimate --lights`` (docs/fivelight.md).
+``mair_small.pt``: the multi-view MAIR model of ``configs/mair_small.toml`` (``small`` preset, 32²
+grid), used by ``ebr estimate --views`` (docs/mair_eval.md).
 """
