@@ -447,6 +447,16 @@ def _page(record, summaries, runs, ds, seconds, inserted, figure: bool) -> str:
         rule,
         *rows,
         "",
+        *(
+            []
+            if record["ebrenv"] is not None
+            else [
+                "The EBREnv flash / no-flash model on the same materials was not run here (no "
+                '`EBR_SPLIT_DATA`): its figures on this split are the "shipped model, ebr estimate" row '
+                "of [models.md](models.md) (and the EBREnv row of [fivelight.md](fivelight.md)).",
+                "",
+            ]
+        ),
         f"*{CENTRE_ONLY}*: the first run's nine-view model fed the centre camera's view alone, out of "
         "its training distribution; the fair centre-view comparison is a model trained so "
         "(`configs/mair_small_centre.toml`, same budget).",
