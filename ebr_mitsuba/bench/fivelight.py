@@ -161,10 +161,7 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
     predictors.append(("oracle constant", oracle_predictor))
     train = os.environ.get("EBR_TRAIN_DATA")
     if train:
-        mean = MeanMaps.from_dataset(train)
-        predictors.append(
-            ("training-set mean maps", lambda item, names: mean.predict(tuple(item["maps"].shape[1:])))
-        )
+        predictors.append(("training-set mean maps", MeanMaps.from_dataset(train).item_predictor()))
 
     t0 = time.perf_counter()
     results, records = {}, {}

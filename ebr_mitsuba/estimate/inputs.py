@@ -700,15 +700,22 @@ def read_shots_of_one_size(
     return images, levels, (h, w)
 
 
-def read_capture_record(path: Path, unreadable: str, foreign: str) -> dict:
-    """The ``ebr capture`` record (``capture.json``) at ``path``; an :class:`InputError` naming it
-    when it is not readable JSON (advice ``unreadable``) or not such a record (advice ``foreign``)."""
+def read_capture_record(
+    path: Path,
+    unreadable: str,
+    foreign: str,
+    fmt: str = CAPTURE_FORMAT,
+    what: str = "an 'ebr capture' record",
+) -> dict:
+    """The ``ebr capture`` record (``capture.json``) at ``path`` — or another JSON record of format
+    ``fmt`` (``what`` it is, for the message); an :class:`InputError` naming it when it is not
+    readable JSON (advice ``unreadable``) or not such a record (advice ``foreign``)."""
     try:
         meta = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise InputError(f"{path}: not readable JSON ({str(exc)[:80]}); {unreadable}") from None
-    if not isinstance(meta, dict) or meta.get("format") != CAPTURE_FORMAT:
-        raise InputError(f"{path}: not an 'ebr capture' record (no format '{CAPTURE_FORMAT}'); {foreign}")
+    if not isinstance(meta, dict) or meta.get("format") != fmt:
+        raise InputError(f"{path}: not {what} (no format '{fmt}'); {foreign}")
     return meta
 
 

@@ -234,12 +234,7 @@ def sample_capture_record(path: Path) -> dict:
     """A generated sample's ``sample.json`` (``ebr generate``, :mod:`ebr_mitsuba.data.store`) read
     as the ``capture.json`` of its views: each shot's ``photo`` is its ``file`` and its flash
     intensity is stated in photo units (the data set's intensity times the sample's exposure)."""
-    try:
-        meta = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"{path}: not readable JSON ({str(exc)[:80]}); regenerate the sample") from None
-    if not isinstance(meta, dict) or meta.get("format") != SAMPLE_FORMAT:
-        raise InputError(f"{path}: not a generated sample (no format '{SAMPLE_FORMAT}'); {_FIX}")
+    meta = read_capture_record(path, "regenerate the sample", _FIX, SAMPLE_FORMAT, "a generated sample")
     if meta.get("setup") != SETUP:
         raise InputError(f"{path}: a '{meta.get('setup')}' sample; --views needs a '{SETUP}' one ({_FIX})")
     try:

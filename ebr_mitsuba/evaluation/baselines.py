@@ -51,6 +51,11 @@ class MeanMaps:
         )
         return MeanMaps(maps, str(root))
 
+    def item_predictor(self):
+        """``predict(item, names) -> SVBRDF``: these maps at each data-set item's size (the
+        ``evaluate`` predictor of the "training-set mean maps" baseline)."""
+        return lambda item, names: self.predict(tuple(item["maps"].shape[1:]))
+
     def predict(self, size: tuple[int, int]) -> SVBRDF:
         if self.maps.shape != tuple(size):
             from ..materials import resample_svbrdf
