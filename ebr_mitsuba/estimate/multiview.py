@@ -47,13 +47,21 @@ area-resampled to the working size, its per-pixel lighting stays at G.
 **Exposure and units.** The network saw the views at the *reference exposure* (each flash at
 :data:`~ebr_mitsuba.geometry.DEFAULT_FLASH_INTENSITY`). When the flash intensities in photo units
 are known (``--flash-intensity``, else ``capture.json``), view k is multiplied by
-``DEFAULT_FLASH_INTENSITY / I_k`` before the network sees it. The network's lighting has no
-absolute scale (its training loss g4 is scale-invariant), so the re-render fits it: each view is
-``a_k F_k + b E_k``, with ``F_k`` the maps lit by view k's flash at the reference intensity and
-``E_k`` the maps under the predicted per-pixel SGs (both by :func:`ebr_mitsuba.nets.mair_render.
-multiview_renders`), ``a_k`` the known flash factor (unknown: one ``a`` for every view, fitted
-with ``b``) and ``b ≥ 0`` fitted by least squares over the in-frame, unsaturated pixels of all
-views. The lighting written is the network's times ``b``: in photo units.
+``DEFAULT_FLASH_INTENSITY / I_k`` before the network sees it. Neither the network's lighting nor
+its diffuse map has an absolute scale (their training losses g4 and g3 are scale-invariant), so
+the re-render fits them (:func:`fit_scales`): view k is ``a_k F_k + b E_k``, with ``F_k`` the maps
+lit by view k's flash at the reference intensity (:func:`ebr_mitsuba.nets.mair_render.
+multiview_renders`), ``E_k`` the maps under the predicted per-pixel SGs read as the radiance they
+mean, the one ``ebr insert`` renders (:func:`env_renders`: the SGs' irradiance over the
+hemisphere above each pixel, their specular reflection by SG convolution), ``a_k`` the known flash
+factor and ``b ≥ 0`` by least squares over the in-frame, unsaturated pixels of all views. With the
+a_k known, the diffuse parts of ``F_k`` and ``E_k`` take a factor free per pixel and channel while
+b is fitted, so that the flash, a light of known intensity, sets the albedo's level and what the
+views show beyond it sets the environment's; the diffuse map is then brought to photo units by the
+median factor per channel (``diffuse_scale``; clipped to [0, 1]). Taking the network's diffuse map
+as absolute instead made the flash term over-shoot most views, b ≈ 0 and the insertion black
+(issue 13). Without known intensities one ``a`` for every view is fitted with ``b`` and the maps
+are taken as they are. The lighting written is the network's times ``b``: in photo units.
 
 **Outputs** (beside those of :mod:`.outputs`: ``maps/``, ``inputs/``, ``rerender/``,
 ``residual/`` per view name, ``novel/``, ``estimate.json``, ``report.html``):
@@ -78,6 +86,7 @@ path                            content
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 import time
@@ -406,11 +415,138 @@ def _torch_lighting(lighting, size: int):
     )
 
 
-def rerender_parts(maps, lighting, shots: list[ViewShot], size: int) -> tuple[np.ndarray, np.ndarray]:
+#: Sharpness range of the table of :func:`clamped_cosine_fraction` (log-spaced; the network's
+#: lobes lie in ``sharpness_range`` = [1, 2000], values outside are clamped to the table's ends).
+CLAMPED_COSINE_SHARPNESS = (0.25, 8192.0)
+
+
+@functools.lru_cache(maxsize=1)
+def _clamped_cosine_table(n_sharpness: int = 97, n_cos: int = 129, n_theta: int = 2048):
+    """``(n_sharpness, n_cos)`` float64 table of :func:`clamped_cosine_fraction` at log-spaced λ
+    over :data:`CLAMPED_COSINE_SHARPNESS` and ``c = n·ξ`` evenly over [−1, 1]: the azimuth integral
+    in closed form (the modified Bessel function I₀), the polar one by the midpoint rule."""
+    import torch
+
+    lo, hi = (math.log(v) for v in CLAMPED_COSINE_SHARPNESS)
+    lam = torch.exp(torch.linspace(lo, hi, n_sharpness, dtype=torch.float64))[:, None, None]
+    c = torch.linspace(-1.0, 1.0, n_cos, dtype=torch.float64)[None, :, None]
+    s = (1.0 - c * c).clamp_min(0.0).sqrt()
+    theta = (torch.arange(n_theta, dtype=torch.float64) + 0.5) * (math.pi / 2) / n_theta
+    ct, st = torch.cos(theta), torch.sin(theta)
+    x = lam * s * st  # ∫ exp(x cos φ) dφ = 2π I₀(x) = 2π e^x i0e(x)
+    g = torch.exp(lam * (c * ct + s * st - 1.0)) * torch.special.i0e(x)  # ≤ 1: no overflow
+    h = 2 * math.pi * (g * ct * st).sum(-1) * (math.pi / 2) / n_theta
+    integral = 2 * math.pi * (-torch.expm1(-2 * lam[..., 0, 0])) / lam[..., 0, 0]
+    return (h / integral[:, None]).to(torch.float32)
+
+
+def clamped_cosine_fraction(sharpness, cos):
+    """``∫_{n·ω>0} G(ω) (n·ω) dω / ∫ G(ω) dω`` of the SG ``G(ω) = exp(λ(ξ·ω − 1))`` with
+    ``cos = n·ξ`` (torch tensors of one shape): what the lobe's integral, read as a light from
+    ``ξ``, must be weighed by so that it lights a surface of normal n as the SG radiance itself
+    does (the clamped-cosine convolution; → ``max(cos, 0)`` for sharp lobes). Interpolated
+    bilinearly in (log λ, cos) from :func:`_clamped_cosine_table` (error under 10⁻³)."""
+    import torch
+    import torch.nn.functional as F
+
+    table = _clamped_cosine_table().to(cos)
+    lo, hi = (math.log(v) for v in CLAMPED_COSINE_SHARPNESS)
+    u = (torch.log(sharpness.clamp(*CLAMPED_COSINE_SHARPNESS)) - lo) / (hi - lo) * 2 - 1
+    v = cos.clamp(-1.0, 1.0)
+    grid = torch.stack([v.reshape(-1), u.reshape(-1)], dim=-1)[None, None]  # x: cos, y: λ
+    out = F.grid_sample(table[None, None], grid, mode="bilinear", align_corners=True)
+    return out.reshape(cos.shape)
+
+
+def sg_product_integral(lam1, lam2, d):
+    """``∫ exp(λ₁(ξ₁·ω − 1)) exp(λ₂(ξ₂·ω − 1)) dω`` over the sphere with ``d = ‖λ₁ξ₁ + λ₂ξ₂‖``
+    (torch, elementwise): ``2π e^(d − λ₁ − λ₂) (1 − e^(−2d)) / d``."""
+    import torch
+
+    dd = d.clamp_min(1e-6)
+    return 2 * math.pi * torch.exp(d - lam1 - lam2) * (-torch.expm1(-2 * dd)) / dd
+
+
+def env_renders(maps, lighting, directions):
+    """The diffuse and specular light of the per-pixel SGs on ``maps`` (torch
+    :class:`~ebr_mitsuba.nets.maps.Maps`, one image) seen along ``directions`` (N, 3, H, W), each
+    (N, H, W, 3): the radiance the written lighting means and ``ebr insert`` renders,
+    ``L_p(ω) = Σ_s μ_s η_s exp(λ_s(ξ_s·ω − 1))``. Diffuse: the albedo / π times the SGs' irradiance
+    over the hemisphere above the pixel (:func:`clamped_cosine_fraction`). Specular: the
+    spherical-Gaussian convolution of Wang et al. (2009) — GGX's D as the SG
+    ``exp((2/α²)(h·n − 1)) / (π α²)``, warped about the mirror direction r to sharpness
+    ``2/α² / (4 n·v)`` and integrated against each lobe in closed form (:func:`sg_product_integral`),
+    times Fresnel, the Smith term and the cosine at r. Reading each lobe as a light from its axis
+    carrying its whole integral (what :func:`~ebr_mitsuba.nets.mair_render.multiview_renders` does
+    for the training loss, where free scales absorb it) counts a broad lobe's half below the
+    horizon and its grazing light at full cosine, and its specular reflection at the GGX peak:
+    for the λ ≈ 1 ambient lobe the network predicts, about twice the diffuse light, and more of the
+    specular."""
+    import torch
+
+    from ..nets import torch_brdf as tb
+    from ..nets.mair_render import sg_integral
+
+    n = tb.perturbed_normal(maps.normal[0].permute(1, 2, 0))  # (H, W, 3)
+    dif = maps.diffuse[0].permute(1, 2, 0)
+    spec = maps.specular[0].permute(1, 2, 0)
+    alpha = tb.alpha_from_roughness(maps.roughness[0, 0])  # (H, W)
+    xi = lighting.axis[0].permute(0, 2, 3, 1)  # (S, H, W, 3)
+    lam = lighting.sharpness[0, :, 0]  # (S, H, W)
+    amp = lighting.amplitude[0].permute(0, 2, 3, 1)  # (S, H, W, 3)
+    v = directions.to(n).permute(0, 2, 3, 1)  # (N, H, W, 3)
+
+    irr = (amp * (sg_integral(lam) * clamped_cosine_fraction(lam, (xi * n).sum(-1)))[..., None]).sum(0)
+    cv = (n * v).sum(-1)  # (N, H, W)
+    seen = ((cv > 0) & (v[..., 2] > 0))[..., None]
+    env_d = torch.where(seen, dif * tb.INV_PI * irr, torch.zeros_like(v))
+
+    r = 2 * cv[..., None] * n - v  # the mirror direction
+    cr = (n * r).sum(-1)
+    lam_w = (2 / (alpha * alpha)) / (4 * cv.clamp_min(1e-3))  # (N, H, W)
+    light = torch.zeros_like(v)
+    for s in range(lam.shape[0]):
+        d = torch.linalg.vector_norm(lam[s][None, ..., None] * xi[s][None] + lam_w[..., None] * r, dim=-1)
+        light = light + amp[s][None] * sg_product_integral(lam[s][None], lam_w, d)[..., None]
+    brdf = (
+        tb.fresnel_schlick(spec, cv)
+        * (
+            tb.smith_vis(cr.clamp_min(0.0), cv.clamp_min(0.0), alpha)
+            * cr.clamp_min(0.0)
+            / (math.pi * alpha * alpha)
+        )[..., None]
+    )
+    ok = seen & ((cr > 0) & (r[..., 2] > 0))[..., None]
+    env_s = torch.where(ok, light * brdf, torch.zeros_like(v))
+    return env_d, env_s
+
+
+@dataclass
+class RerenderParts:
+    """The re-render's parts per view, each (N, size, size, 3): the maps lit by the view's flash at
+    :data:`DEFAULT_FLASH_INTENSITY` (``flash_diffuse``, ``flash_specular``) and by the per-pixel SGs
+    at the network's scale (``env_diffuse``, ``env_specular``)."""
+
+    flash_diffuse: np.ndarray
+    flash_specular: np.ndarray
+    env_diffuse: np.ndarray
+    env_specular: np.ndarray
+
+    @property
+    def flash(self) -> np.ndarray:
+        return self.flash_diffuse + self.flash_specular
+
+    @property
+    def env(self) -> np.ndarray:
+        return self.env_diffuse + self.env_specular
+
+
+def rerender_parts(maps, lighting, shots: list[ViewShot], size: int) -> RerenderParts:
     """Per view (N, size, size, 3): the maps lit by the view's flash at
-    :data:`DEFAULT_FLASH_INTENSITY` from its position, and under the per-pixel SGs. The renderer
-    (:func:`~ebr_mitsuba.nets.mair_render.multiview_renders`) takes the flash at the camera, as
-    in the 3×3 setup (a flash elsewhere is a warning of :func:`resolve_views`)."""
+    :data:`DEFAULT_FLASH_INTENSITY` from its position, and under the per-pixel SGs at the network's
+    scale (:func:`env_renders`), diffuse and specular apart. The flash's renderer
+    (:func:`~ebr_mitsuba.nets.mair_render.multiview_renders`) takes it at the camera, as in the 3×3
+    setup (a flash elsewhere is a warning of :func:`resolve_views`)."""
     import torch
 
     from ..nets.mair_lighting import PixelSGLighting
@@ -420,38 +556,116 @@ def rerender_parts(maps, lighting, shots: list[ViewShot], size: int) -> tuple[np
 
     with torch.no_grad():
         m = Maps.from_svbrdf([maps])
-        lt = _torch_lighting(lighting, size)
         vshots = [Shot(s.name, s.camera, s.fov, s.flash) for s in shots]
         dirs = view_direction_maps(size, size, vshots)
         flashes = torch.tensor(
             [s.flash if s.flash is not None else s.camera for s in shots], dtype=torch.float32
         )
-        env_d, env_s = multiview_renders(m, lt, dirs, flashes, 0.0)
-        # no lobes: the flash alone (the SG term, the costly one, is not computed again)
+        lt = _torch_lighting(lighting, size)
+        env_d, env_s = env_renders(m, lt, dirs)
+        # no lobes: the flash alone
         dark = PixelSGLighting(lt.axis[:, :0], lt.sharpness[:, :0], lt.visibility[:, :0], lt.intensity[:, :0])
         fl_d, fl_s = multiview_renders(m, dark, dirs, flashes, DEFAULT_FLASH_INTENSITY)
 
     def hwc(x):
         return x[0].permute(0, 2, 3, 1).numpy().astype(np.float32)
 
-    return hwc(fl_d + fl_s), hwc(env_d + env_s)
+    def hwc_(x):
+        return x.numpy().astype(np.float32)
+
+    return RerenderParts(hwc(fl_d), hwc(fl_s), hwc_(env_d), hwc_(env_s))
 
 
-def fit_scales(photos, flash, env, masks, known: list[float] | None) -> tuple[list[float], float]:
-    """``(a_k per view, b)``: photo k ≈ a_k flash_k + b env_k by least squares over ``masks``
-    (module docstring); ``known``: the a_k (else one fitted a for every view). Both ≥ 0."""
-    p = [np.asarray(x, np.float64)[m] for x, m in zip(photos, masks)]
-    f = [np.asarray(x, np.float64)[m] for x, m in zip(flash, masks)]
-    e = [np.asarray(x, np.float64)[m] for x, m in zip(env, masks)]
-    ee = sum(float(np.sum(x * x)) for x in e)
-    if known is not None:
-        r = [pk - a * fk for pk, a, fk in zip(p, known, f)]
-        b = sum(float(np.sum(x * y)) for x, y in zip(r, e)) / ee if ee > 0 else 0.0
-        return list(known), max(b, 0.0)
-    ff = sum(float(np.sum(x * x)) for x in f)
-    fe = sum(float(np.sum(x * y)) for x, y in zip(f, e))
-    pf = sum(float(np.sum(x * y)) for x, y in zip(p, f))
-    pe = sum(float(np.sum(x * y)) for x, y in zip(p, e))
+@dataclass(frozen=True)
+class Scales:
+    """What :func:`fit_scales` finds: the flash factor ``a`` per view, the lighting scale ``b``
+    and ``diffuse`` (3,), the factor per channel the network's diffuse map is brought to photo
+    units with (ones where it was not fitted)."""
+
+    a: list[float]
+    b: float
+    diffuse: tuple[float, float, float] = (1.0, 1.0, 1.0)
+
+
+#: Lighting scales :func:`fit_scales` tries (times b₀, the scale at which the lighting alone
+#: explains the views) before refining the best by golden-section search.
+SCALE_GRID = np.concatenate([[0.0], np.geomspace(1e-4, 4.0, 161)])
+MIN_VIEWS_PER_PIXEL = 3  # pixels seen by fewer views leave the diffuse factor's median out
+
+
+def _views_sum(x, y, w) -> np.ndarray:
+    return np.einsum("nhwc,nhwc,nhw->hwc", x, y, w, optimize=True)
+
+
+def fit_scales(photos, parts: RerenderParts, masks, known: list[float] | None) -> Scales:
+    """The re-render's scales (module docstring, "Exposure and units") by least squares over
+    ``masks`` (in-frame, unsaturated pixels of each view); ``photos`` (N, H, W, 3) per view,
+    ``parts`` their :func:`rerender_parts`; ``known``: the flash factors a_k (None: one fitted a).
+
+    With the a_k known, view k is modelled as ``α(p) (a_k F_d,k + b E_d,k) + a_k F_s,k + b E_s,k``
+    with a diffuse factor α ≥ 0 free per pixel and channel: the network's diffuse map has no
+    absolute scale (its loss g3 is scale-invariant) and little of the texture right, and a map
+    taken as is makes a_k F_d,k over- or under-shoot the views, which then leaves the environment
+    a negative residual (b clamped to 0: a black insertion) or too much. α is solved in closed form
+    for each b, whose residual (the views' sums precomputed per pixel as quadratics in b) is then
+    minimised over b ≥ 0: what separates flash from environment is how each pixel's flash term
+    changes from view to view while the environment's diffuse light does not. The maps are brought
+    to photo units with the median α per channel (``diffuse``). Without the a_k, one a and b are
+    fitted with the maps as they are (α = 1): the flash's level and the albedo's cannot be told
+    apart then."""
+    w = np.stack([np.asarray(m, np.float64) for m in masks])
+    p = np.stack([np.asarray(x, np.float64) for x in photos])
+    fd, fs = parts.flash_diffuse.astype(np.float64), parts.flash_specular.astype(np.float64)
+    ed, es = parts.env_diffuse.astype(np.float64), parts.env_specular.astype(np.float64)
+    if known is None:
+        return _fit_unknown_flash(p, fd + fs, ed + es, w)
+    a = np.asarray(known, np.float64)[:, None, None, None]
+    r0, r1 = p - a * fs, es  # the views less the specular parts: r0 − b r1
+    h0, h1 = a * fd, ed  # the diffuse parts at α = 1: h0 + b h1
+    rr = [_views_sum(r0, r0, w), -2 * _views_sum(r0, r1, w), _views_sum(r1, r1, w)]
+    rh = [_views_sum(r0, h0, w), _views_sum(r0, h1, w) - _views_sum(r1, h0, w), -_views_sum(r1, h1, w)]
+    hh = [_views_sum(h0, h0, w), 2 * _views_sum(h0, h1, w), _views_sum(h1, h1, w)]
+
+    def quad(c, b):
+        return c[0] + b * (c[1] + b * c[2])
+
+    def alpha(b):
+        den = quad(hh, b)
+        return np.where(den > 0, np.maximum(quad(rh, b), 0.0) / np.where(den > 0, den, 1.0), 0.0)
+
+    def residual(b):
+        return float(np.sum(quad(rr, b) - alpha(b) * np.maximum(quad(rh, b), 0.0)))
+
+    ee = float(np.sum(hh[2] + 2 * _views_sum(h1, r1, w) + rr[2]))  # ‖E_d + E_s‖²
+    pe = float(np.sum(_views_sum(p, ed + es, w)))
+    b0 = pe / ee if ee > 0 and pe > 0 else 0.0
+    b = 0.0
+    if b0 > 0:
+        grid = SCALE_GRID * b0
+        res = [residual(x) for x in grid]
+        k = int(np.argmin(res))
+        lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
+        g = (math.sqrt(5) - 1) / 2
+        for _ in range(40):  # golden-section search in the best grid cell's neighbourhood
+            x1, x2 = hi - g * (hi - lo), lo + g * (hi - lo)
+            if residual(x1) <= residual(x2):
+                hi = x2
+            else:
+                lo = x1
+        b = min((grid[k], (lo + hi) / 2), key=residual)
+    al = alpha(b)
+    seen = (w.sum(0) >= MIN_VIEWS_PER_PIXEL) & (hh[0] > 0).all(-1)
+    diffuse = tuple(float(np.median(al[..., c][seen])) if seen.any() else 1.0 for c in range(3))
+    return Scales(list(map(float, known)), float(b), diffuse)
+
+
+def _fit_unknown_flash(p, f, e, w) -> Scales:
+    """One a for every view and b ≥ 0 (module docstring), the maps as they are."""
+
+    def dot(x, y):
+        return float(np.sum(_views_sum(x, y, w)))
+
+    ff, ee, fe, pf, pe = dot(f, f), dot(e, e), dot(f, e), dot(p, f), dot(p, e)
     det = ff * ee - fe * fe
     a, b = (
         ((pf * ee - pe * fe) / det, (pe * ff - pf * fe) / det)
@@ -461,14 +675,25 @@ def fit_scales(photos, flash, env, masks, known: list[float] | None) -> tuple[li
     if a < 0 or b < 0:  # the best of the two one-term fits
         a1 = pf / ff if ff > 0 else 0.0
         b1 = pe / ee if ee > 0 else 0.0
-        r_a = sum(float(np.sum((pk - a1 * fk) ** 2)) for pk, fk in zip(p, f))
-        r_b = sum(float(np.sum((pk - b1 * ek) ** 2)) for pk, ek in zip(p, e))
+        r_a = float(np.sum(w[..., None] * (p - a1 * f) ** 2))
+        r_b = float(np.sum(w[..., None] * (p - b1 * e) ** 2))
         a, b = (max(a1, 0.0), 0.0) if r_a <= r_b else (0.0, max(b1, 0.0))
     if not a > 0:
         raise InputError(
             "--views: the views show no light from their flashes; check the files, or give --flash-intensity"
         )
-    return [a] * len(photos), b
+    return Scales([a] * len(p), b)
+
+
+def scale_diffuse(maps, parts: RerenderParts, factor) -> tuple[object, RerenderParts]:
+    """``maps`` with the diffuse map times ``factor`` (3,), clipped to [0, 1], and ``parts`` to
+    match (the diffuse parts are linear in the diffuse map, pixel by pixel)."""
+    old = np.asarray(maps.diffuse, np.float32)
+    new = np.clip(old * np.asarray(factor, np.float32), 0.0, 1.0).astype(np.float32)
+    ratio = np.where(old > 0, new / np.where(old > 0, old, 1.0), 0.0).astype(np.float32)
+    return dataclasses.replace(maps, diffuse=new), dataclasses.replace(
+        parts, flash_diffuse=parts.flash_diffuse * ratio, env_diffuse=parts.env_diffuse * ratio
+    )
 
 
 # -- lighting files ---------------------------------------------------------------------------------
@@ -575,11 +800,12 @@ def write_weights(out: Path, weights: dict[str, np.ndarray]) -> list[str]:
 class ViewsEstimate:
     """What :func:`estimate_views` makes of a capture: its ``shots``, the rectified ``views`` at the
     working size ``work``, the model ``grid``, the ``maps`` at ``work``, the network's ``prediction``
-    (lighting without scale), the re-render parts ``flash`` and ``env`` per view, the fitted flash
-    factors ``a`` and lighting scale ``b`` (the lighting in photo units is the network's times b),
-    ``known`` (the flash intensities in photo units, None: fitted) and where they came from,
-    ``to_reference`` (each view's factor to the reference exposure), ``warnings``, ``timings``
-    (stage → seconds, :class:`.outputs.Stages`)."""
+    (lighting without scale), the re-render parts ``flash`` and ``env`` per view (of ``maps``), the
+    fitted flash factors ``a`` and lighting scale ``b`` (the lighting in photo units is the
+    network's times b), ``known`` (the flash intensities in photo units, None: fitted) and where
+    they came from, ``to_reference`` (each view's factor to the reference exposure), ``warnings``,
+    ``diffuse_scale`` (the factor per channel ``maps``' diffuse is the network's times, before
+    clipping to [0, 1]; module docstring, "Exposure and units")."""
 
     shots: list[ViewShot]
     views: RectifiedViews
@@ -595,6 +821,7 @@ class ViewsEstimate:
     known_source: str | None
     to_reference: list[float]
     warnings: list[str]
+    diffuse_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     @property
     def names(self) -> list[str]:
@@ -691,15 +918,30 @@ def estimate_views(
 
     t0 = time.perf_counter()
     log(f"re-rendering the {VIEW_COUNT} views")
-    flash, env = rerender_parts(maps, pred.lighting, shots, work)
+    parts = rerender_parts(maps, pred.lighting, shots, work)
     photos = [views.images[n] for n in names]
     masks = [(views.weights[n] > 0) & ~views.saturated[n] for n in names]
     factors = [k / DEFAULT_FLASH_INTENSITY for k in known] if known else None
-    a, b = fit_scales(photos, flash, env, masks, factors)
+    scales = fit_scales(photos, parts, masks, factors)
+    maps, parts = scale_diffuse(maps, parts, scales.diffuse)
     tick("re-render")
     stage("rerender", t0)
     return ViewsEstimate(
-        shots, views, work, grid, maps, pred, flash, env, a, b, known, known_source, to_reference, warnings
+        shots,
+        views,
+        work,
+        grid,
+        maps,
+        pred,
+        parts.flash,
+        parts.env,
+        scales.a,
+        scales.b,
+        known,
+        known_source,
+        to_reference,
+        warnings,
+        scales.diffuse,
     )
 
 
@@ -798,6 +1040,7 @@ def run_multiview(
                 "per_pixel_sgs": lighting.num_sgs,
                 "grid": list(lighting.shape),
                 "scale": float(est.b),
+                "diffuse_scale": list(est.diffuse_scale),
                 "centre_pixel": "env.json",
             },
             "rerender_error": {"network": errors, "refined": None},
@@ -835,13 +1078,19 @@ __all__ = [
     "MultiViewConfig",
     "TRAIN_HINT",
     "VIEW_COUNT",
+    "RerenderParts",
+    "Scales",
     "ViewShot",
     "ViewsEstimate",
+    "clamped_cosine_fraction",
+    "env_renders",
     "estimate_views",
     "fit_scales",
     "load_mair",
     "read_views",
     "rectify_views",
+    "rerender_parts",
+    "scale_diffuse",
     "model_path",
     "resolve_views",
     "run_multiview",
