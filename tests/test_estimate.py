@@ -863,3 +863,26 @@ def test_diverging_refinement_is_reported(tmp_path, capsys, fake_net):
     np.testing.assert_allclose(
         read_exr(out / "maps" / "diffuse.exr"), read_exr(out / "maps_network" / "diffuse.exr"), atol=1e-5
     )
+
+
+def test_near_model_on_a_near_far_capture(tmp_path, capsys):
+    """The shipped near model given a near-far capture: the far pair stays out of the network (a
+    near model refuses it; the maps pass used to hand it over) and serves the flash fit and the
+    re-renders; the summary warns that the model reads near captures only."""
+    from ebr_mitsuba.capture import capture
+    from ebr_mitsuba.model.predict import shipped_model_path
+
+    cap = tmp_path / "cap"
+    capture(_material(128), ENV, "near-far", cap, spp=4, res=128, progress=False)  # above the grid
+    out = tmp_path / "est"
+    shots = ["--flash", cap / "flash.exr", "--noflash", cap / "noflash.exr"]
+    shots += ["--far-flash", cap / "far_flash.exr", "--far-noflash", cap / "far_noflash.exr"]
+    code, stdout, err = _estimate(
+        [*shots, "--checkpoint", shipped_model_path(), "--out", out, "--json"], capsys
+    )
+    assert code == 0, err
+    summary = json.loads(stdout)
+    assert summary["capture"] == "near-far"
+    assert any("near captures only" in w for w in summary["warnings"])
+    assert summary["flash_fit"] is not None and 0.0 < summary["flash_fit"]["roughness"] <= 1.0
+    assert (out / "renders" / "far_flash.exr").is_file() or any(out.rglob("*far_flash*"))

@@ -26,6 +26,10 @@ over the samples (1 = as much structure as the truth everywhere). The cap keeps 
 truth (a brushed metal: spread 0.004) from dominating the average: uncapped, 0.026 of spurious
 relief on one such sample read as 6.5 and lifted a set of nearly flat estimates to 0.5.
 
+Near-far captures (``EBR_NEAR_FAR_DATA``, optional: ``configs/data_real_near_far_test.toml``):
+each capture estimated from its near shots alone and from all four shots, with the shipped model
+and, when installed, the shipped near-far model (:func:`near_far_results`).
+
 Inputs: ``EBR_SPLIT_DATA`` names the generated test set; ``EBR_SHIPPED_RUN`` (optional) the
 training run of the shipped model, for the training summary (the page's first section has the
 commands).
@@ -65,6 +69,8 @@ export EBR_DATA_DIR=../shared/data EBR_SPLIT_DATA=/tmp/ebr-data/real_test \\
 ebr generate configs/data_real_test.toml --out $EBR_SPLIT_DATA --workers 2    # metered, Mitsuba 256 spp
 ebr generate configs/data_real_train.toml --out $EBR_TRAIN_DATA --workers 2   # for the mean-maps baseline
 EBR_INIT=ebr_mitsuba/models/ebrenv_small.pt ebr train configs/train_real.toml --out /tmp/ebr-runs/real
+export EBR_NEAR_FAR_DATA=/tmp/ebr-data/real_nf_test  # the near-far section (optional)
+ebr generate configs/data_real_near_far_test.toml --out $EBR_NEAR_FAR_DATA --workers 2
 EBR_SHIPPED_RUN=/tmp/ebr-runs/real EBR_CANDIDATES="NAME=CHECKPOINT;..." EBR_REFINE='{"steps": 100}' \\
   ebr bench models  # this page"""
 
@@ -308,10 +314,12 @@ def _verdict_lines(verdict: dict | None) -> list[str]:
     ]
 
 
-def _row(name: str, m: dict, extra: str = "") -> str:
+def _row(name: str, m: dict, extra: str | None = "") -> str:
+    """A table row: per-map RMSE, re-render RMSE, SSIM and ``extra`` (None: no last cell)."""
     pm = m["per_map_rmse"]
     cells = " | ".join(f"{pm[k]:.4f}" for k in COLUMNS)
-    return f"| {name} | {cells} | {m['rerender_rmse']:.4f} | {m['ssim']:.3f} | {extra} |"
+    last = "" if extra is None else f" {extra} |"
+    return f"| {name} | {cells} | {m['rerender_rmse']:.4f} | {m['ssim']:.3f} |{last}"
 
 
 def _sheet(truths, rows: dict[str, list], path: Path) -> None:
@@ -457,6 +465,7 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
             many["estimate"]["per_sample"], many["estimate + refinement"]["per_sample"]
         )
         verdict["options"] = refine_opts
+    near_far = near_far_results(n if quick else 0, log)
     seconds = time.perf_counter() - t0
     import tempfile
 
@@ -475,7 +484,7 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
 
     # the five-light ablation of `ebr bench fivelight`: beside this page, else the one in docs/
     ablation = read_ablation(out_dir, Path(__file__).resolve().parents[2] / DEFAULT_OUT)
-    page = _page(results, ds, n, seconds, quick, summary, run_dir, verdict, check, ablation)
+    page = _page(results, ds, n, seconds, quick, summary, run_dir, verdict, check, ablation, near_far)
     atomic_write_text(out_dir / "models.md", page)
     atomic_write_text(
         out_dir / "models.json",
@@ -484,6 +493,9 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
                 **{k: {kk: vv for kk, vv in v.items() if kk != "per_sample"} for k, v in results.items()},
                 "refinement_verdict": verdict,
                 "capture_check": check,
+                "near_far": None
+                if near_far is None
+                else {k: {kk: vv for kk, vv in v.items() if kk != "per_sample"} for k, v in near_far.items()},
             },
             indent=1,
             default=float,
@@ -491,6 +503,80 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
         + "\n",
     )
     return out_dir / "models.md"
+
+
+NEAR_ONLY = "near shots, shipped model"
+NEAR_FAR_FIT = "near + far shots, shipped model (near-far flash fit)"
+NEAR_FAR_MODEL = "near + far shots, shipped near-far model"
+
+
+def near_far_results(limit: int, log=print) -> dict | None:
+    """``ebr estimate`` on the near-far test captures of ``$EBR_NEAR_FAR_DATA`` (None when unset):
+    each capture's near shots alone with the shipped model, all four shots with the shipped model
+    (the far pair enters the flash fit only), all four with the shipped near-far model when one is
+    installed, and the oracle constant maps; name → :func:`evaluate` result."""
+    from ..commands._common import progress
+    from ..estimate.refine import RefineConfig
+    from ..evaluation.evaluate import estimate_predictor, evaluate, oracle_predictor
+    from ..model.predict import load_predictor, shipped_model_path
+
+    data = os.environ.get("EBR_NEAR_FAR_DATA")
+    if not data:
+        return None
+    if not (Path(data) / "dataset.json").is_file():
+        raise InputError(
+            f"$EBR_NEAR_FAR_DATA = {data!r}: not a data set; make it with the commands in docs/models.md"
+        )
+    shipped = load_predictor(None)
+    runs = [(NEAR_ONLY, shipped, False), (NEAR_FAR_FIT, shipped, True)]
+    if shipped_model_path(near_far=True).is_file():
+        runs.append((NEAR_FAR_MODEL, load_predictor(shipped_model_path(near_far=True)), True))
+    out = {}
+    for name, predictor, far in runs:
+        log(f"[bench models] near-far captures: {name}")
+        est = estimate_predictor(predictor, data, RefineConfig(), far=far)
+        out[name] = evaluate(
+            lambda item, names, run=est: run(item, names)["estimate"], data, limit=limit, progress=progress
+        )
+    log("[bench models] near-far captures: oracle constant")
+    out["oracle constant"] = evaluate(oracle_predictor, data, limit=limit, progress=progress)
+    out["oracle constant"]["data"] = data
+    return out
+
+
+def _near_far_lines(near_far: dict | None) -> list[str]:
+    if near_far is None:
+        return ["(Near-far captures not measured: set `EBR_NEAR_FAR_DATA`.)", ""]
+    from ..data.dataset import GeneratedDataset
+
+    ds = GeneratedDataset(near_far["oracle constant"]["data"])
+    cfg = ds.dataset.get("config", {})
+    render = cfg.get("render", {})
+    n = len(next(iter(near_far.values()))["per_sample"])
+    lines = [
+        f"The same test split captured near-far (`configs/data_real_near_far_test.toml`: {n} captures at "
+        f"{cfg.get('dataset', {}).get('resolution', '?')}², `{render.get('renderer', '?')}` at "
+        f"{render.get('spp', '?')} spp, four shots). Each capture is estimated by `ebr estimate` from its "
+        "near shots alone and from all four; with the far pair the flash fit reads the roughness off "
+        "near − far per ring, where the albedo cancels "
+        "([estimate.md](estimate.md#the-flash-profile-fit-default)).",
+        "",
+        "| predictor | normal | diffuse | roughness | specular | mean | re-render | SSIM |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|",
+        *[_row(k, v, None) for k, v in near_far.items()],
+        "",
+    ]
+    near = near_far[NEAR_ONLY]["per_map_rmse"]["mean"]
+    best = NEAR_FAR_MODEL if NEAR_FAR_MODEL in near_far else NEAR_FAR_FIT
+    both = near_far[best]["per_map_rmse"]["mean"]
+    lines.append(
+        f"- **{best}**: mean per-map RMSE {both:.4f} against the near shots' {near:.4f} "
+        f"({100 * (both - near) / near:+.0f} %; acceptance: below — {'yes' if both < near else 'no'}; "
+        "EBREnv: 0.0310 vs 0.0450)."
+    )
+    if NEAR_FAR_MODEL not in near_far:
+        lines.append("- No near-far model is installed (`ebr_mitsuba/models/ebrenv_near_far.pt`).")
+    return lines + [""]
 
 
 def _small(m):
@@ -573,8 +659,10 @@ def _page(
     verdict: dict | None = None,
     check: dict | None = None,
     ablation: dict | None = None,
+    near_far: dict | None = None,
 ) -> str:
-    """The page; ``ablation``: the five-light ablation (``fivelight.json``), None when not measured."""
+    """The page; ``ablation``: the five-light ablation (``fivelight.json``), None when not measured;
+    ``near_far``: :func:`near_far_results`."""
     from ..data.split import load_split
     from .ablation import models_section
 
@@ -643,6 +731,9 @@ def _page(
         "",
         *_verdict_lines(verdict),
         *_capture_lines(check),
+        "## Near-far captures",
+        "",
+        *_near_far_lines(near_far),
         "## By material class (mean per-map RMSE / re-render RMSE)",
         "",
         chead,

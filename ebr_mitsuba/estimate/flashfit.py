@@ -54,6 +54,19 @@ the two shots; its low frequencies (flash fall-off, environment gradients) are w
 mean divides out, at the price of the albedo's own low frequencies (the level is global). Shading
 by the normals' relief stays in the pattern (it is read as albedo texture).
 
+The far pair. A near-far capture (``docs/conventions.md``, "Geometry") adds a far flash / no-flash
+pair on the same pixel grid (the far frame is the same sample square), its flash as far as its
+lens and as bright at the sample. Its view angles stay below 8°, so per pixel ``g_far(x) = ρ(x) +
+π f_s(θ_far(x))`` with θ_far small everywhere: over the same pixels of a ring, the near ring's
+statistic minus the far ring's mean is ``π f̄_s(ring, near) − π f̄_s(ring, far)`` — the albedo
+texture cancels, whatever it is (a texture brighter at the frame's centre, which the near rings
+alone read as a lobe, no longer biases the roughness). With :class:`FarPair` given, the pixels
+saturated in either pair are left out of both, the metal-or-dielectric choice is made on the near
+rings as above, and the roughness of that hypothesis is the one of lowest cost on these
+differences (relative to the near level, plus the near saturation terms); the level, F₀ of a
+metal and the maps come from the near shots as before. The far flash intensity is the near one ×
+(far / near distance)² unless ``capture.json`` states both (``ebr estimate``).
+
 ``ebr estimate`` runs the fit by default after the network (``--no-flash-fit``: the network's
 maps) and keeps the network's normals; ``ebr bench models`` scores both on the test split
 (``docs/models.md``).
@@ -73,11 +86,11 @@ import numpy as np
 import torch
 
 from ..errors import InputError
-from ..geometry import DEFAULT_FLASH_INTENSITY, NEAR_DISTANCE, view_directions
+from ..geometry import DEFAULT_FLASH_INTENSITY, FAR_DISTANCE, NEAR_DISTANCE, view_directions
 from ..imageio import box_mean
 from ..typedconfig import config, option
 
-__all__ = ["FlashFit", "FlashFitConfig", "fit_flash"]
+__all__ = ["FarPair", "FlashFit", "FlashFitConfig", "fit_flash"]
 
 METAL_MARGIN = 0.5  # the metal hypothesis wins when its cost is below this × the dielectric's
 TRIM = 0.1  # the albedo level is the mean of the middle 80 % of the per-pixel ratios
@@ -187,6 +200,49 @@ class FlashFit:
         }
 
 
+@dataclass
+class FarPair:
+    """The far shots of a near-far capture for :func:`fit_flash` (module docstring, "The far pair").
+
+    ``flash``, ``noflash``: (H, W, 3) linear photo values on the near shots' pixel grid and in their
+    units (the frame is the same sample square); ``camera``: the far lens and flash position;
+    ``intensity``: the far flash's W/sr in those units (None: the near intensity × (far / near
+    distance)², what ``ebr capture`` and ``ebr generate`` use); ``saturated``: (H, W) bool or None
+    (``flash ≥ clip`` in any channel)."""
+
+    flash: np.ndarray
+    noflash: np.ndarray
+    camera: tuple = (0.0, 0.0, FAR_DISTANCE)
+    intensity: float | None = None
+    saturated: np.ndarray | None = None
+    to_radiance: float = 1.0
+
+    def pixels(self, h: int, w: int, near_camera, clip: float) -> _FarPixels:
+        """Per pixel (flattened): g = flash-only / flat unit-albedo shading, saturated, cos θ."""
+        fl = torch.from_numpy(np.asarray(self.flash, np.float64)).reshape(-1, 3)
+        nf = torch.from_numpy(np.asarray(self.noflash, np.float64)).reshape(-1, 3)
+        if self.saturated is None:
+            sat = (fl >= clip).any(-1)
+        else:
+            sat = torch.from_numpy(np.asarray(self.saturated, bool).reshape(-1))
+        cos = torch.from_numpy(view_directions(h, w, self.camera)[..., 2].astype(np.float64)).reshape(-1)
+        shade = float(self.intensity) * cos / (math.pi * (float(self.camera[2]) / cos) ** 2)
+        g = ((fl - nf).clamp_min(0.0) * self.to_radiance).mean(-1) / shade
+        return _FarPixels(g, sat, cos)
+
+    def shrunk(self, f: int) -> FarPair:
+        """The pair area-averaged over f × f blocks (a saturated pixel saturates its block)."""
+        small_sat = None if self.saturated is None else _area(np.asarray(self.saturated, np.float32), f) > 0
+        return replace(self, flash=_area(self.flash, f), noflash=_area(self.noflash, f), saturated=small_sat)
+
+
+@dataclass
+class _FarPixels:
+    g: torch.Tensor
+    saturated: torch.Tensor
+    cos: torch.Tensor
+
+
 def _trimmed_mean(x: torch.Tensor, cut: float = TRIM) -> torch.Tensor:
     """Mean of the values between the ``cut`` and ``1 − cut`` quantiles (robust to the residue of
     the highlight and to outliers, unbiased for a symmetric or two-tone texture)."""
@@ -195,9 +251,10 @@ def _trimmed_mean(x: torch.Tensor, cut: float = TRIM) -> torch.Tensor:
     return inside.mean() if inside.numel() else x.mean()
 
 
-def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, opts):
+def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, opts, far=None):
     """The roughness of lowest cost and whether the metal hypothesis wins, with the grid and its
-    costs (module docstring); ``saturated`` (H, W) bool."""
+    costs (module docstring); ``saturated`` (H, W) bool; ``far``: None or a :class:`_FarPair`
+    (its rings are the near rings' pixels, module docstring "The far pair")."""
 
     flash = np.asarray(flash, np.float64)
     noflash = np.asarray(noflash, np.float64)
@@ -221,12 +278,14 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
     ring_sat = torch.zeros(opts.bins, dtype=torch.float64)
     ring_floor = torch.zeros(opts.bins, dtype=torch.float64)  # clip level in g units, saturated rings
     clip_g = ((min(clip, 1e30) - nf.mean(-1)) * to_radiance).clamp_min(0.0) / shade
-    kept = ~saturated  # the pixels of each ring's statistic (trimmed: the middle of its g values)
+    far_px = None if far is None else far.pixels(h, w, camera, clip)
+    excluded = saturated if far_px is None else saturated | far_px.saturated  # the same pixels in both
+    kept = ~excluded  # the pixels of each ring's statistic (trimmed: the middle of its g values)
     for k in range(opts.bins):
         inside = ring == k
         ring_cos[k] = cos[inside].mean()
         ring_sat[k] = saturated[inside].double().mean()
-        ok = inside & ~saturated
+        ok = inside & ~excluded
         if int(ok.sum()) > 3:
             if opts.ring_statistic == "median":
                 ring_med[k] = g[ok].median()
@@ -277,6 +336,8 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
     costs = torch.zeros(len(grid), dtype=torch.float64)
     metal_costs = torch.zeros(len(grid), dtype=torch.float64)
     metal_f0 = torch.zeros(len(grid), dtype=torch.float64)
+    diff_costs = torch.zeros(len(grid), dtype=torch.float64)
+    metal_diff_costs = torch.zeros(len(grid), dtype=torch.float64)
     use_mean = opts.ring_statistic != "median"
     ring_ok = torch.where(kept, ring, torch.full_like(ring, opts.bins))  # saturated / trimmed: no ring
     ring_count = torch.bincount(ring_ok, minlength=opts.bins + 1)[: opts.bins].double().clamp_min(1.0)
@@ -284,6 +345,17 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
     def ring_mean(values: torch.Tensor) -> torch.Tensor:  # mean over each ring's unsaturated pixels
         sums = torch.zeros(opts.bins + 1, dtype=torch.float64).index_add_(0, ring_ok, values)
         return sums[: opts.bins] / ring_count
+
+    # the far pair: each ring's mean over the same kept pixels (their albedo mean is the near ring's)
+    far_use = torch.zeros(opts.bins, dtype=torch.bool)
+    if far_px is not None:
+        far_ring = ring_mean(far_px.g)
+        far_use = usable & (ring_count >= 4)
+        if int(far_use.sum()) < 3:  # too few rings left unsaturated in both shots: the near fit alone
+            far_use[:] = False
+        far_table = _LobeTable(far_px.cos)
+    if far_use.any():  # near − far per ring: the albedo cancels, the lobes' difference remains
+        observed_diff = ring_med[far_use] - far_ring[far_use]
 
     for i, r in enumerate(grid.tolist()):
         s_pixels = lobe_pixels(r)
@@ -300,8 +372,21 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
         mc = mc + floor_cost(m * unit_ring, ring_scale)
         metal_costs[i] = mc + saturation_cost(m * s_pixels / opts.f0)
         metal_f0[i] = m
+        if far_use.any():  # the same hypotheses judged on near − far: the albedo's rings cancel
+            s_diff = s_ring[far_use] - ring_mean(far_table(r, opts.f0))[far_use]
+            diff_costs[i] = ((observed_diff - s_diff) / level).pow(2).mean()
+            diff_costs[i] += floor_cost(level + s_ring, level) + saturation_cost(level + s_pixels)
+            unit_diff = s_diff / opts.f0
+            md = (observed_diff * unit_diff).sum() / unit_diff.pow(2).sum().clamp_min(1e-30)
+            mcd = ((observed_diff - md.clamp(1e-4, 1.0) * unit_diff) / ring_scale).pow(2).mean()
+            metal_diff_costs[i] = (
+                mcd + floor_cost(m * unit_ring, ring_scale) + saturation_cost(m * s_pixels / opts.f0)
+            )
     best, best_metal = int(torch.argmin(costs)), int(torch.argmin(metal_costs))
-    metal = bool(metal_costs[best_metal] < METAL_MARGIN * costs[best])
+    metal = bool(metal_costs[best_metal] < METAL_MARGIN * costs[best])  # decided on the near rings
+    if far_use.any():  # the roughness read off near − far (module docstring, "The far pair")
+        costs, metal_costs = diff_costs, metal_diff_costs
+        best, best_metal = int(torch.argmin(costs)), int(torch.argmin(metal_costs))
     if metal:
         return float(grid[best_metal]), True, grid.numpy(), metal_costs.numpy()
     return float(grid[best]), False, grid.numpy(), costs.numpy()
@@ -344,6 +429,29 @@ def _area(a: np.ndarray, f: int) -> np.ndarray:
     return a.reshape(h // f, f, w // f, f, *a.shape[2:]).mean(axis=(1, 3))
 
 
+def _checked_far(far: FarPair, shape, intensity: float, camera, to_radiance: float, clip: float) -> FarPair:
+    """``far`` with its photos as float32 (H, W, 3) of ``shape``, its intensity resolved and its
+    saturation mask made (``flash ≥ clip``) when not given."""
+    fl = np.asarray(far.flash, np.float32)
+    nf = np.asarray(far.noflash, np.float32)
+    if fl.shape != tuple(shape) or nf.shape != tuple(shape):
+        raise InputError(
+            f"fit_flash: the far shots are {fl.shape} and {nf.shape}; expected the near shots' {tuple(shape)}"
+        )
+    value = far.intensity
+    if value is None:
+        value = intensity * (float(far.camera[2]) / float(camera[2])) ** 2
+    if not value > 0:
+        raise InputError(f"fit_flash: the far flash intensity ({value}) must be > 0")
+    sat = (fl >= clip).any(-1) if far.saturated is None else np.asarray(far.saturated, bool)
+    if sat.size != shape[0] * shape[1]:
+        raise InputError(
+            f"fit_flash: the far saturation mask has {sat.size} pixels; expected {shape[0]}x{shape[1]}"
+        )
+    sat = sat.reshape(shape[:2])
+    return replace(far, flash=fl, noflash=nf, intensity=float(value), saturated=sat, to_radiance=to_radiance)
+
+
 def fit_flash(
     flash: np.ndarray,
     noflash: np.ndarray,
@@ -354,6 +462,7 @@ def fit_flash(
     saturated: np.ndarray | None = None,
     clip_level: float | None = None,
     options: FlashFitConfig | None = None,
+    far: FarPair | None = None,
 ) -> FlashFit:
     """Fit roughness, albedo level and diffuse pattern to a flash / no-flash pair (module docstring).
 
@@ -361,8 +470,9 @@ def fit_flash(
     flash's units; ``intensity``: the flash's W/sr; ``camera``: the lens and flash position;
     ``saturated``: (H, W) bool mask of clipped pixels (None: ``flash ≥ clip_level`` in any
     channel); ``clip_level``: the photo value that saturates (None: ``options.clip``; ``inf``:
-    nothing saturates, the saturation terms vanish). Photos larger than ``options.fit_size`` are
-    fitted (roughness, metal or not) on an area-averaged copy; the maps are made at full size.
+    nothing saturates, the saturation terms vanish); ``far``: the far shots of a near-far capture
+    (module docstring, "The far pair"). Photos larger than ``options.fit_size`` are fitted
+    (roughness, metal or not) on an area-averaged copy; the maps are made at full size.
     """
     opts = options or FlashFitConfig()
     flash = np.asarray(flash, np.float32)
@@ -382,12 +492,15 @@ def fit_flash(
         if saturated.size != h * w:
             raise InputError(f"fit_flash: the saturation mask has {saturated.size} pixels; expected {h}x{w}")
         saturated = saturated.reshape(h, w)
+    if far is not None:
+        far = _checked_far(far, flash.shape, intensity, camera, to_radiance, clip)
     f = -(-max(h, w) // opts.fit_size)
     if f > 1:  # a saturated pixel saturates its block
         small = (_area(flash, f), _area(noflash, f), _area(saturated.astype(np.float32), f) > 0)
+        far = None if far is None else far.shrunk(f)
     else:
         small = (flash, noflash, saturated)
-    r_fit, metal, grid, costs = _profile(*small, to_radiance, intensity, camera, clip, opts)
+    r_fit, metal, grid, costs = _profile(*small, to_radiance, intensity, camera, clip, opts, far)
 
     # the maps at full size (float32)
     fl = torch.from_numpy(flash).reshape(-1, 3)

@@ -460,12 +460,12 @@ def predict_maps(
     # ensemble when the working size is within 4× the grid).
     t0 = time.perf_counter()
     with torch_threads(1):  # module docstring, "Speed"
+        far = ("far_flash", "far_noflash") if predictor.takes_far else ()  # a near model: near shots
         g_in = predictor.grid_pass_inputs(
             lighting,
             grid_photos["flash"],
             grid_photos.get("noflash"),
-            grid_photos.get("far_flash"),
-            grid_photos.get("far_noflash"),
+            *(grid_photos.get(k) for k in far),
         )
         g_out = predictor.cascade_pass(g_in, lighting.env)  # the module: faster than FastNAFNet at the grid
         step("grid pass")

@@ -109,7 +109,9 @@ class EstimateConfig:
     )
     far_flash: str | None = option(None, "far shot with the flash", flag="--far-flash", metavar="F2")
     far_noflash: str | None = option(None, "far shot without the flash", flag="--far-noflash", metavar="NF2")
-    checkpoint: str | None = checkpoint_option("model checkpoint", "the shipped model")
+    checkpoint: str | None = checkpoint_option(
+        "model checkpoint", "the shipped model (with far shots: the shipped near-far model)"
+    )
     refine: RefineConfig = option(RefineConfig(), "test-time refinement (RefineConfig; its --refine-* flags)")
     exposure_ratio: float | None = option(
         None,
@@ -214,6 +216,18 @@ def known_flash_intensity(cfg: EstimateConfig, inputs: Inputs) -> tuple[float | 
         return float(cfg.flash_intensity), "--flash-intensity"
     value = capture_intensities(cfg.flash).get(Path(inputs.paths["flash"]).name)
     return (float(value), "capture.json") if value else (None, None)
+
+
+def far_flash_ratio(cfg: EstimateConfig, inputs: Inputs, far_distance: float) -> float:
+    """The far flash's intensity over the near flash's: from ``capture.json`` when it states both,
+    else (far / near distance)², what ``ebr capture`` and ``ebr generate`` use (the far flash
+    then lights the sample as brightly as the near one)."""
+    known = capture_intensities(cfg.flash)
+    near = known.get(Path(inputs.paths["flash"]).name)
+    far = known.get(Path(inputs.paths.get("far_flash", "")).name)
+    if near and far:
+        return float(far) / float(near)
+    return (far_distance / near_distance(inputs.fov)) ** 2
 
 
 def _intensities(
@@ -416,7 +430,12 @@ def run_estimate(
         steps(0, 2, "import")
         if predictor is None:
             steps(1, 2, "load")
-            predictor = load_predictor(cfg.checkpoint)
+            checkpoint = cfg.checkpoint
+            if checkpoint is None:  # a capture with far shots: the shipped near-far model
+                from ..model.predict import default_checkpoint
+
+                checkpoint = default_checkpoint(inputs.has_far)
+            predictor = load_predictor(None if checkpoint is None else str(checkpoint))
         steps(2, 2, "done")
     grid = int(predictor.grid)
     if inputs.has_far and not predictor.takes_far:
@@ -477,16 +496,28 @@ def run_estimate(
 
     flash_fit = None
     if cfg.flash_fit:
-        from .flashfit import FlashFitConfig, fit_flash
+        from .flashfit import FarPair, FlashFitConfig, fit_flash
 
         t0 = time.perf_counter()
-        log("fitting the flash profile: roughness, specular and the albedo level")
+        log(
+            "fitting the flash profile: roughness, specular and the albedo level"
+            + (" (near and far flash)" if work_inputs.has_far else "")
+        )
         flash_img = work_inputs.images["flash"]
         noflash_img = work_inputs.images.get("noflash")
         if noflash_img is None:  # a flash-only capture: the flash shot is the flash-only image
             noflash_img = np.zeros_like(flash_img)
         clip = work_inputs.clip_level if work_inputs.clip_level is not None else math.inf
         fit_options = FlashFitConfig()
+        far_pair = None
+        if work_inputs.has_far and not work_inputs.flash_only:
+            far_pair = FarPair(
+                work_inputs.images["far_flash"],
+                work_inputs.images["far_noflash"],
+                camera=(0.0, 0.0, FAR_DISTANCE),
+                intensity=far_flash_ratio(cfg, inputs, FAR_DISTANCE) * DEFAULT_FLASH_INTENSITY,
+                saturated=work_inputs.saturated,
+            )
         flash_fit = fit_flash(
             flash_img,
             noflash_img,
@@ -495,6 +526,7 @@ def run_estimate(
             saturated=work_inputs.saturated,
             clip_level=clip,
             options=fit_options,
+            far=far_pair,
         )
         weight = fit_options.weight_for(max(flash_img.shape[:2]))
         flash_fit = flash_fit.with_network_diffuse(np.asarray(maps.diffuse), weight)

@@ -93,7 +93,7 @@ def _lights_predictor(predictor: LightsPredictor) -> Callable[[dict, list[str]],
 
 
 def estimate_predictor(
-    predictor, data: str | Path, refine=None, flash_fit: bool = True
+    predictor, data: str | Path, refine=None, flash_fit: bool = True, far: bool = True
 ) -> Callable[[dict, list[str]], dict]:
     """``predict(item, shot_names) -> {"estimate": SVBRDF[, "estimate + refinement": SVBRDF]}``:
     what ``ebr estimate`` makes of each sample's photo files (its working size, full-resolution
@@ -102,6 +102,8 @@ def estimate_predictor(
     ``capture.json`` states it).
 
     ``flash_fit``: ``ebr estimate``'s flash-profile fit (its default, on; False: ``--no-flash-fit``).
+    ``far``: a near-far sample's far shots are given to ``ebr estimate`` (False: its near shots
+    only, the same capture estimated as a near one).
     ``predictor``: the :class:`~ebr_mitsuba.model.predictor.Predictor` of the estimates. Each
     sample runs :func:`ebr_mitsuba.estimate.pipeline.run_estimate` into a temporary directory
     (its files are written as by ``ebr estimate``); the maps are the ones it returns in memory
@@ -130,8 +132,8 @@ def estimate_predictor(
             cfg = EstimateConfig(
                 flash=str(shots["flash"]),
                 noflash=str(shots["noflash"]),
-                far_flash=str(shots["far_flash"]) if "far_flash" in shots else None,
-                far_noflash=str(shots["far_noflash"]) if "far_noflash" in shots else None,
+                far_flash=str(shots["far_flash"]) if far and "far_flash" in shots else None,
+                far_noflash=str(shots["far_noflash"]) if far and "far_noflash" in shots else None,
                 out=str(out),
                 refine=refine,
                 flash_intensity=intensity,

@@ -48,12 +48,22 @@ from .device import pick_device
 from .predictor import Lighting, PassInputs, PixelLighting, Prediction, ViewsPrediction
 
 SHIPPED_MODEL = "ebrenv_small.pt"
+SHIPPED_NEAR_FAR_MODEL = "ebrenv_near_far.pt"  # configs/train_real_near_far.toml: four-shot captures
 FALLBACK_ROUGHNESS = 0.5
 
 
-def shipped_model_path() -> Path:
-    """Path of the model shipped in the package (:mod:`ebr_mitsuba.models`)."""
-    return Path(str(resources.files("ebr_mitsuba.models").joinpath(SHIPPED_MODEL)))
+def shipped_model_path(near_far: bool = False) -> Path:
+    """Path of the model shipped in the package (:mod:`ebr_mitsuba.models`); ``near_far``: the
+    near-far model's, which ``ebr estimate`` uses for a capture with far shots when present."""
+    name = SHIPPED_NEAR_FAR_MODEL if near_far else SHIPPED_MODEL
+    return Path(str(resources.files("ebr_mitsuba.models").joinpath(name)))
+
+
+def default_checkpoint(has_far: bool) -> Path | None:
+    """The checkpoint ``ebr estimate`` loads when none is given: the shipped near-far model for a
+    capture with far shots (when it is installed), else None (the shipped near model)."""
+    path = shipped_model_path(near_far=True)
+    return path if has_far and path.is_file() else None
 
 
 def load_model(
@@ -534,6 +544,8 @@ __all__ = [
     "grid_pass_inputs",
     "predict_lighting",
     "SHIPPED_MODEL",
+    "SHIPPED_NEAR_FAR_MODEL",
+    "default_checkpoint",
     "estimate_lighting",
     "load_model",
     "load_predictor",
