@@ -422,14 +422,17 @@ def test_cli_eval_json(tiny, tiny_model, capsys):
     assert "--limit -1" in capsys.readouterr().err
 
 
-def test_bench_models_page(tiny, tiny_model, tmp_path, monkeypatch):
+def test_bench_models_page(tiny, tiny_nf, tiny_model, tmp_path, monkeypatch):
     """``ebr bench models`` on tiny data: every predictor scored on the same samples, the page,
-    the contact sheet and the plots written, the acceptance lines computed."""
+    the contact sheet and the plots written, the acceptance lines computed; the near-far section
+    on tiny near-far data (no near-far model installed: the near model with and without the far
+    pair)."""
     from ebr_mitsuba.bench import models
     from ebr_mitsuba.model import predict as inference
 
     for name in ("EBR_SPLIT_DATA", "EBR_TRAIN_DATA", "EBR_SHIPPED_RUN", "EBR_CANDIDATES", "EBR_REFINE"):
         monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("EBR_NEAR_FAR_DATA", str(tiny_nf))
     assert "EBR_SPLIT_DATA" in models.unavailable()
     monkeypatch.setenv("EBR_REFINE", '{"steps": 4}')
     monkeypatch.setitem(models.CAPTURE_CHECK, "res", 64)  # the capture check, small
@@ -440,7 +443,8 @@ def test_bench_models_page(tiny, tiny_model, tmp_path, monkeypatch):
     monkeypatch.setenv("EBR_TRAIN_DATA", str(tiny))
     monkeypatch.setenv("EBR_SHIPPED_RUN", str(run_dir))
     monkeypatch.setenv("EBR_CANDIDATES", f"previous={tiny_model}")
-    monkeypatch.setattr(inference, "shipped_model_path", lambda: tiny_model)
+    shipped = lambda near_far=False: tmp_path / "none.pt" if near_far else tiny_model  # noqa: E731
+    monkeypatch.setattr(inference, "shipped_model_path", shipped)
     assert models.unavailable() is None
     run = {"per_map_rmse": dict.fromkeys(("normal", "diffuse", "roughness", "specular", "mean"), 0.5)}
     run |= {"metal_rough": {"base colour": 0.25, "metallic": 0.125}, "rerender_rmse": 0.75, "ssim": 0.5}
@@ -469,11 +473,19 @@ def test_bench_models_page(tiny, tiny_model, tmp_path, monkeypatch):
     verdict = json.loads((tmp_path / "docs" / "models.json").read_text())["refinement_verdict"]
     assert verdict["n"] == 2 and len(verdict["cases"]) == 2 and 0 <= verdict["both"] <= 1
     assert f"both in {100 * verdict['both']:.0f} %" in text
+    near_far = json.loads((tmp_path / "docs" / "models.json").read_text())["near_far"]
+    assert set(near_far) == {models.NEAR_ONLY, models.NEAR_FAR_FIT, "oracle constant"}
+    for name in near_far:
+        assert f"| {name} |" in text
+    assert "No near-far model is installed" in text and "acceptance: below" in text
     check = json.loads((tmp_path / "docs" / "models.json").read_text())["capture_check"]
     assert 0 < check["flash_rel_rmse"] and check["flash"]["source"] == "capture.json"
     assert f"off by {100 * check['flash_rel_rmse']:.1f} % relative RMSE" in text
     for png in ("models_loss.png", "models_maps.jpg", "models_classes.png"):
         assert (tmp_path / "docs" / png).is_file()
+    monkeypatch.setenv("EBR_NEAR_FAR_DATA", str(tmp_path / "nowhere"))
+    with pytest.raises(InputError, match="EBR_NEAR_FAR_DATA"):
+        models.near_far_results(1)
     monkeypatch.setenv("EBR_CANDIDATES", "broken")
     with pytest.raises(InputError, match="EBR_CANDIDATES"):
         models.run(tmp_path / "docs2", quick=True, log=lambda msg: None)
