@@ -226,7 +226,8 @@ def test_far_pair_separates_albedo_from_the_lobe(roughness):
     )
     near = fit_flash(flash, noflash, to_radiance=1 / exposure)
     both = fit_flash(flash, noflash, to_radiance=1 / exposure, far=FarPair(far_flash, far_noflash))
-    assert not both.metal
+    assert not both.metal and both.far_pair and not near.far_pair
+    assert both.to_json()["far_pair"] is True
     assert abs(both.roughness - roughness) <= 0.03, both.roughness
     assert abs(near.roughness - roughness) > 0.1, near.roughness  # what the far pair fixes
     np.testing.assert_allclose(both.level, near.level, rtol=0.25)  # the level is the near rings'

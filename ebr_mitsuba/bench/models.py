@@ -68,9 +68,13 @@ export EBR_DATA_DIR=../shared/data EBR_SPLIT_DATA=/tmp/ebr-data/real_test \\
        EBR_TRAIN_DATA=/tmp/ebr-data/real_train
 ebr generate configs/data_real_test.toml --out $EBR_SPLIT_DATA --workers 2    # metered, Mitsuba 256 spp
 ebr generate configs/data_real_train.toml --out $EBR_TRAIN_DATA --workers 2   # for the mean-maps baseline
-EBR_INIT=ebr_mitsuba/models/ebrenv_small.pt ebr train configs/train_real.toml --out /tmp/ebr-runs/real
+EBR_INIT=$PWD/ebr_mitsuba/models/ebrenv_small.pt ebr train configs/train_real.toml --out /tmp/ebr-runs/real
 export EBR_NEAR_FAR_DATA=/tmp/ebr-data/real_nf_test  # the near-far section (optional)
 ebr generate configs/data_real_near_far_test.toml --out $EBR_NEAR_FAR_DATA --workers 2
+ebr generate configs/data_real_near_far_train.toml --out /tmp/ebr-data/real_nf_train --workers 2
+EBR_TRAIN_DATA=/tmp/ebr-data/real_nf_train EBR_INIT=$PWD/ebr_mitsuba/models/ebrenv_small.pt \\
+  ebr train configs/train_real_near_far.toml --out /tmp/ebr-runs/real_nf \\
+  --export ebr_mitsuba/models/ebrenv_near_far.pt   # the shipped near-far model
 EBR_SHIPPED_RUN=/tmp/ebr-runs/real EBR_CANDIDATES="NAME=CHECKPOINT;..." EBR_REFINE='{"steps": 100}' \\
   ebr bench models  # this page"""
 

@@ -164,6 +164,7 @@ class FlashFit:
     specular: np.ndarray
     metal: bool = False
     specular_rgb: np.ndarray | None = None
+    far_pair: bool = False  # the roughness was read off near − far (module docstring, "The far pair")
 
     def maps(self, normal: np.ndarray, source: str = "flash fit"):
         """The fitted maps as an :class:`~ebr_mitsuba.svbrdf.SVBRDF` with ``normal`` (H, W, 3):
@@ -197,6 +198,7 @@ class FlashFit:
             "specular": [round(float(x), 4) for x in rgb],
             "diffuse_level": [round(float(x), 4) for x in self.level],
             "metal": self.metal,
+            "far_pair": self.far_pair,
         }
 
 
@@ -252,9 +254,9 @@ def _trimmed_mean(x: torch.Tensor, cut: float = TRIM) -> torch.Tensor:
 
 
 def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, opts, far=None):
-    """The roughness of lowest cost and whether the metal hypothesis wins, with the grid and its
-    costs (module docstring); ``saturated`` (H, W) bool; ``far``: None or a :class:`_FarPair`
-    (its rings are the near rings' pixels, module docstring "The far pair")."""
+    """The roughness of lowest cost, whether the metal hypothesis wins, the grid and its costs,
+    and whether the far rings were used (module docstring); ``saturated`` (H, W) bool; ``far``:
+    None or a :class:`FarPair` (its rings are the near rings' pixels, "The far pair")."""
 
     flash = np.asarray(flash, np.float64)
     noflash = np.asarray(noflash, np.float64)
@@ -388,8 +390,8 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
         costs, metal_costs = diff_costs, metal_diff_costs
         best, best_metal = int(torch.argmin(costs)), int(torch.argmin(metal_costs))
     if metal:
-        return float(grid[best_metal]), True, grid.numpy(), metal_costs.numpy()
-    return float(grid[best]), False, grid.numpy(), costs.numpy()
+        return float(grid[best_metal]), True, grid.numpy(), metal_costs.numpy(), bool(far_use.any())
+    return float(grid[best]), False, grid.numpy(), costs.numpy(), bool(far_use.any())
 
 
 def _lobe(v: torch.Tensor, r: float, f0: float) -> torch.Tensor:
@@ -500,7 +502,7 @@ def fit_flash(
         far = None if far is None else far.shrunk(f)
     else:
         small = (flash, noflash, saturated)
-    r_fit, metal, grid, costs = _profile(*small, to_radiance, intensity, camera, clip, opts, far)
+    r_fit, metal, grid, costs, used_far = _profile(*small, to_radiance, intensity, camera, clip, opts, far)
 
     # the maps at full size (float32)
     fl = torch.from_numpy(flash).reshape(-1, 3)
@@ -524,6 +526,7 @@ def fit_flash(
             specular=spec_radiance.reshape(h, w, 3).numpy(),
             metal=True,
             specular_rgb=f0_rgb.numpy().astype(np.float32),
+            far_pair=used_far,
         )
     s_pix = _LobeTable(cos)(r_fit, opts.f0)  # g units
     spec_radiance = s_pix[:, None] * shade[:, None]  # flash-only radiance of the lobe (grey F0)
@@ -547,4 +550,5 @@ def fit_flash(
         specular=spec_radiance.expand(-1, 3).reshape(h, w, 3).numpy(),
         metal=False,
         specular_rgb=np.full(3, opts.f0, np.float32),
+        far_pair=used_far,
     )
