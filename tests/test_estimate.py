@@ -886,3 +886,28 @@ def test_near_model_on_a_near_far_capture(tmp_path, capsys):
     assert any("near captures only" in w for w in summary["warnings"])
     assert summary["flash_fit"] is not None and 0.0 < summary["flash_fit"]["roughness"] <= 1.0
     assert (out / "renders" / "far_flash.exr").is_file() or any(out.rglob("*far_flash*"))
+
+
+def test_a_near_far_capture_uses_the_shipped_near_far_model(tmp_path, capsys):
+    """No --checkpoint and far shots: ebr estimate loads ebrenv_near_far.pt (it reads all four
+    shots), and the flash fit reads the roughness off the far pair; a near capture keeps the near
+    model."""
+    from ebr_mitsuba.capture import capture
+    from ebr_mitsuba.model.predict import shipped_model_path
+
+    assert shipped_model_path(near_far=True).is_file()
+    cap = tmp_path / "cap"
+    capture(_material(64), ENV, "near-far", cap, spp=4, res=64, progress=False)
+    near = ["--flash", cap / "flash.exr", "--noflash", cap / "noflash.exr"]
+    far = ["--far-flash", cap / "far_flash.exr", "--far-noflash", cap / "far_noflash.exr"]
+    code, stdout, err = _estimate([*near, *far, "--out", tmp_path / "nf", "--json"], capsys)
+    assert code == 0, err
+    summary = json.loads(stdout)
+    assert summary["model"] == {"checkpoint": str(shipped_model_path(near_far=True)), "takes_far": True}
+    assert not any("near captures only" in w for w in summary["warnings"])
+    assert summary["flash_fit"]["far_pair"] is True
+    code, stdout, err = _estimate([*near, "--out", tmp_path / "n", "--json"], capsys)
+    assert code == 0, err
+    summary = json.loads(stdout)
+    assert summary["model"] == {"checkpoint": str(shipped_model_path()), "takes_far": False}
+    assert summary["flash_fit"]["far_pair"] is False

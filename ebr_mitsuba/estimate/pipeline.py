@@ -426,6 +426,7 @@ def run_estimate(
         log(f"warning: {w}")
 
     t0 = time.perf_counter()
+    model_used = "given by the caller"  # estimate.json "model"
     with _Steps(bar if predictor is None else None, "model", delay=0.5) as steps:
         steps(0, 2, "import")
         if predictor is None:
@@ -436,6 +437,11 @@ def run_estimate(
 
                 checkpoint = default_checkpoint(inputs.has_far)
             predictor = load_predictor(None if checkpoint is None else str(checkpoint))
+            if checkpoint is None:
+                from ..model.predict import shipped_model_path
+
+                checkpoint = shipped_model_path()
+            model_used = str(checkpoint)
         steps(2, 2, "done")
     grid = int(predictor.grid)
     if inputs.has_far and not predictor.takes_far:
@@ -591,6 +597,7 @@ def run_estimate(
         "out": str(out),
         "capture": "flash-only" if inputs.flash_only else ("near-far" if inputs.has_far else "near"),
         "inputs": inputs.to_json(),
+        "model": {"checkpoint": model_used, "takes_far": bool(predictor.takes_far)},
         "model_grid": grid,
         "resolution": work,
         "tiles": tiles,
