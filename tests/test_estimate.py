@@ -46,7 +46,12 @@ class FakePredictor:
         self.calls = calls
 
     def load(self, path):
-        """Stands in for :func:`ebr_mitsuba.estimate.pipeline.load_predictor`."""
+        """Stands in for :func:`ebr_mitsuba.estimate.pipeline.load_predictor` (for the shipped
+        models too: a near-far capture's default is the shipped near-far model's file)."""
+        from ebr_mitsuba.model.predict import shipped_model_path
+
+        if path is not None and Path(path) == shipped_model_path(near_far=True):
+            return self
         if path is not None and Path(path).read_bytes()[:9] != b"FAKE-CKPT":
             raise InputError(
                 f"{path}: not an ebr model checkpoint (wrong kind); give a checkpoint of `ebr train`"
@@ -578,9 +583,9 @@ def test_real_model_end_to_end(tmp_path, capsys):
 
 
 def test_real_model_near_far_and_real_flash_only_photo(tmp_path, capsys, data_dir):
-    """The shipped (near) model on a generated near-far capture (the far pair feeds the re-renders
-    and the refinement, with a warning) and on a real flash-only phone photo (256², estimated at
-    --max-size 128: full resolution above the 64² grid, downscaled with a warning)."""
+    """The shipped models on a generated near-far capture (the near-far model, reading the four
+    shots, refined 5 steps) and on a real flash-only phone photo (256², estimated at --max-size
+    128: full resolution above the 64² grid, downscaled with a warning)."""
     from ebr_mitsuba.capture import capture
     from ebr_mitsuba.model.predict import load_predictor
 
@@ -595,7 +600,8 @@ def test_real_model_near_far_and_real_flash_only_photo(tmp_path, capsys, data_di
     assert code == 0, err
     summary = json.loads(stdout)
     _check_outputs(out, summary, far=True)
-    assert any("far shots are used for the re-renders" in w for w in summary["inputs"]["warnings"])
+    assert summary["model"]["takes_far"] and summary["refine"]["steps"] == 5
+    assert not any("far shots are used for the re-renders" in w for w in summary["inputs"]["warnings"])
     photo = sorted((data_dir / "photos" / "flash_only").glob("*.png"))[0]
     out = tmp_path / "photo"
     code, stdout, err = _estimate(["--flash", photo, "--out", out, "--max-size", "128", "--json"], capsys)

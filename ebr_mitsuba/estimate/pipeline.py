@@ -110,7 +110,7 @@ class EstimateConfig:
     far_flash: str | None = option(None, "far shot with the flash", flag="--far-flash", metavar="F2")
     far_noflash: str | None = option(None, "far shot without the flash", flag="--far-noflash", metavar="NF2")
     checkpoint: str | None = checkpoint_option(
-        "model checkpoint", "the shipped model (with far shots: the shipped near-far model)"
+        "model checkpoint (none: with far shots, the shipped near-far model)", "the shipped model"
     )
     refine: RefineConfig = option(RefineConfig(), "test-time refinement (RefineConfig; its --refine-* flags)")
     exposure_ratio: float | None = option(
