@@ -217,24 +217,21 @@ class FarPair:
     camera: tuple = (0.0, 0.0, FAR_DISTANCE)
     intensity: float | None = None
     saturated: np.ndarray | None = None
-    to_radiance: float = 1.0
 
-    def pixels(self, h: int, w: int, near_camera, clip: float) -> _FarPixels:
-        """Per pixel (flattened): g = flash-only / flat unit-albedo shading, saturated, cos θ."""
+    def pixels(self, h: int, w: int, to_radiance: float) -> _FarPixels:
+        """Per pixel (flattened) of a pair checked by :func:`_checked_far` (intensity and mask
+        resolved): g = flash-only / flat unit-albedo shading, saturated, cos θ."""
         fl = torch.from_numpy(np.asarray(self.flash, np.float64)).reshape(-1, 3)
         nf = torch.from_numpy(np.asarray(self.noflash, np.float64)).reshape(-1, 3)
-        if self.saturated is None:
-            sat = (fl >= clip).any(-1)
-        else:
-            sat = torch.from_numpy(np.asarray(self.saturated, bool).reshape(-1))
+        sat = torch.from_numpy(np.asarray(self.saturated, bool).reshape(-1))
         cos = torch.from_numpy(view_directions(h, w, self.camera)[..., 2].astype(np.float64)).reshape(-1)
         shade = float(self.intensity) * cos / (math.pi * (float(self.camera[2]) / cos) ** 2)
-        g = ((fl - nf).clamp_min(0.0) * self.to_radiance).mean(-1) / shade
+        g = ((fl - nf).clamp_min(0.0) * to_radiance).mean(-1) / shade
         return _FarPixels(g, sat, cos)
 
     def shrunk(self, f: int) -> FarPair:
         """The pair area-averaged over f × f blocks (a saturated pixel saturates its block)."""
-        small_sat = None if self.saturated is None else _area(np.asarray(self.saturated, np.float32), f) > 0
+        small_sat = _area(np.asarray(self.saturated, np.float32), f) > 0
         return replace(self, flash=_area(self.flash, f), noflash=_area(self.noflash, f), saturated=small_sat)
 
 
@@ -280,7 +277,7 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
     ring_sat = torch.zeros(opts.bins, dtype=torch.float64)
     ring_floor = torch.zeros(opts.bins, dtype=torch.float64)  # clip level in g units, saturated rings
     clip_g = ((min(clip, 1e30) - nf.mean(-1)) * to_radiance).clamp_min(0.0) / shade
-    far_px = None if far is None else far.pixels(h, w, camera, clip)
+    far_px = None if far is None else far.pixels(h, w, to_radiance)
     excluded = saturated if far_px is None else saturated | far_px.saturated  # the same pixels in both
     kept = ~excluded  # the pixels of each ring's statistic (trimmed: the middle of its g values)
     for k in range(opts.bins):
@@ -365,25 +362,20 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
         if use_mean:  # a lobe sharper than the central ring must show in its mean, as in the data's
             s_ring = torch.where(usable, ring_mean(s_pixels), s_ring)
         level = (ring_med[usable] - s_ring[usable]).median().clamp_min(1e-4)
-        cost = ((ring_med[usable] - level - s_ring[usable]) / level).pow(2).mean()
-        cost = cost + floor_cost(level + s_ring, level)
-        costs[i] = cost + saturation_cost(level + s_pixels)
+        extra = floor_cost(level + s_ring, level) + saturation_cost(level + s_pixels)  # the clipped tip
+        costs[i] = ((ring_med[usable] - level - s_ring[usable]) / level).pow(2).mean() + extra
         unit_ring = s_ring / opts.f0
         m = (ring_med[usable] / unit_ring[usable].clamp_min(1e-12)).median().clamp(1e-4, 1.0)
-        mc = ((ring_med[usable] - m * unit_ring[usable]) / ring_scale).pow(2).mean()
-        mc = mc + floor_cost(m * unit_ring, ring_scale)
-        metal_costs[i] = mc + saturation_cost(m * s_pixels / opts.f0)
+        metal_extra = floor_cost(m * unit_ring, ring_scale) + saturation_cost(m * s_pixels / opts.f0)
+        metal_costs[i] = ((ring_med[usable] - m * unit_ring[usable]) / ring_scale).pow(2).mean() + metal_extra
         metal_f0[i] = m
         if far_use.any():  # the same hypotheses judged on near − far: the albedo's rings cancel
             s_diff = s_ring[far_use] - ring_mean(far_table(r, opts.f0))[far_use]
-            diff_costs[i] = ((observed_diff - s_diff) / level).pow(2).mean()
-            diff_costs[i] += floor_cost(level + s_ring, level) + saturation_cost(level + s_pixels)
+            diff_costs[i] = ((observed_diff - s_diff) / level).pow(2).mean() + extra
             unit_diff = s_diff / opts.f0
             md = (observed_diff * unit_diff).sum() / unit_diff.pow(2).sum().clamp_min(1e-30)
             mcd = ((observed_diff - md.clamp(1e-4, 1.0) * unit_diff) / ring_scale).pow(2).mean()
-            metal_diff_costs[i] = (
-                mcd + floor_cost(m * unit_ring, ring_scale) + saturation_cost(m * s_pixels / opts.f0)
-            )
+            metal_diff_costs[i] = mcd + metal_extra
     best, best_metal = int(torch.argmin(costs)), int(torch.argmin(metal_costs))
     metal = bool(metal_costs[best_metal] < METAL_MARGIN * costs[best])  # decided on the near rings
     if far_use.any():  # the roughness read off near − far (module docstring, "The far pair")
@@ -431,7 +423,7 @@ def _area(a: np.ndarray, f: int) -> np.ndarray:
     return a.reshape(h // f, f, w // f, f, *a.shape[2:]).mean(axis=(1, 3))
 
 
-def _checked_far(far: FarPair, shape, intensity: float, camera, to_radiance: float, clip: float) -> FarPair:
+def _checked_far(far: FarPair, shape, intensity: float, camera, clip: float) -> FarPair:
     """``far`` with its photos as float32 (H, W, 3) of ``shape``, its intensity resolved and its
     saturation mask made (``flash ≥ clip``) when not given."""
     fl = np.asarray(far.flash, np.float32)
@@ -451,7 +443,7 @@ def _checked_far(far: FarPair, shape, intensity: float, camera, to_radiance: flo
             f"fit_flash: the far saturation mask has {sat.size} pixels; expected {shape[0]}x{shape[1]}"
         )
     sat = sat.reshape(shape[:2])
-    return replace(far, flash=fl, noflash=nf, intensity=float(value), saturated=sat, to_radiance=to_radiance)
+    return replace(far, flash=fl, noflash=nf, intensity=float(value), saturated=sat)
 
 
 def fit_flash(
@@ -495,7 +487,7 @@ def fit_flash(
             raise InputError(f"fit_flash: the saturation mask has {saturated.size} pixels; expected {h}x{w}")
         saturated = saturated.reshape(h, w)
     if far is not None:
-        far = _checked_far(far, flash.shape, intensity, camera, to_radiance, clip)
+        far = _checked_far(far, flash.shape, intensity, camera, clip)
     f = -(-max(h, w) // opts.fit_size)
     if f > 1:  # a saturated pixel saturates its block
         small = (_area(flash, f), _area(noflash, f), _area(saturated.astype(np.float32), f) > 0)

@@ -646,12 +646,17 @@ def fit_scales(photos, parts: RerenderParts, masks, known: list[float] | None) -
         k = int(np.argmin(res))
         lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
         g = (math.sqrt(5) - 1) / 2
+        x1, x2 = hi - g * (hi - lo), lo + g * (hi - lo)
+        r1, r2 = residual(x1), residual(x2)
         for _ in range(40):  # golden-section search in the best grid cell's neighbourhood
-            x1, x2 = hi - g * (hi - lo), lo + g * (hi - lo)
-            if residual(x1) <= residual(x2):
-                hi = x2
+            if r1 <= r2:  # the minimum is in [lo, x2]: x1 becomes the upper probe
+                hi, x2, r2 = x2, x1, r1
+                x1 = hi - g * (hi - lo)
+                r1 = residual(x1)
             else:
-                lo = x1
+                lo, x1, r1 = x1, x2, r2
+                x2 = lo + g * (hi - lo)
+                r2 = residual(x2)
         b = min((grid[k], (lo + hi) / 2), key=residual)
     al = alpha(b)
     seen = (w.sum(0) >= MIN_VIEWS_PER_PIXEL) & (hh[0] > 0).all(-1)

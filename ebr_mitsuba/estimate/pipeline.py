@@ -218,16 +218,14 @@ def known_flash_intensity(cfg: EstimateConfig, inputs: Inputs) -> tuple[float | 
     return (float(value), "capture.json") if value else (None, None)
 
 
-def far_flash_ratio(cfg: EstimateConfig, inputs: Inputs, far_distance: float) -> float:
-    """The far flash's intensity over the near flash's: from ``capture.json`` when it states both,
-    else (far / near distance)², what ``ebr capture`` and ``ebr generate`` use (the far flash
-    then lights the sample as brightly as the near one)."""
+def stated_far_ratio(cfg: EstimateConfig, inputs: Inputs) -> float | None:
+    """The far flash's intensity over the near flash's when ``capture.json`` states both, else
+    None (the flash fit then takes (far / near distance)², what ``ebr capture`` and ``ebr
+    generate`` use: :class:`~.flashfit.FarPair`)."""
     known = capture_intensities(cfg.flash)
     near = known.get(Path(inputs.paths["flash"]).name)
     far = known.get(Path(inputs.paths.get("far_flash", "")).name)
-    if near and far:
-        return float(far) / float(near)
-    return (far_distance / near_distance(inputs.fov)) ** 2
+    return float(far) / float(near) if near and far else None
 
 
 def _intensities(
@@ -431,17 +429,12 @@ def run_estimate(
         steps(0, 2, "import")
         if predictor is None:
             steps(1, 2, "load")
-            checkpoint = cfg.checkpoint
-            if checkpoint is None:  # a capture with far shots: the shipped near-far model
-                from ..model.predict import default_checkpoint
+            from ..model.predict import default_checkpoint, shipped_model_path
 
-                checkpoint = default_checkpoint(inputs.has_far)
+            # none given: with far shots the shipped near-far model, else the shipped near model
+            checkpoint = cfg.checkpoint if cfg.checkpoint is not None else default_checkpoint(inputs.has_far)
             predictor = load_predictor(None if checkpoint is None else str(checkpoint))
-            if checkpoint is None:
-                from ..model.predict import shipped_model_path
-
-                checkpoint = shipped_model_path()
-            model_used = str(checkpoint)
+            model_used = str(checkpoint or shipped_model_path())
         steps(2, 2, "done")
     grid = int(predictor.grid)
     if inputs.has_far and not predictor.takes_far:
@@ -517,11 +510,12 @@ def run_estimate(
         fit_options = FlashFitConfig()
         far_pair = None
         if work_inputs.has_far and not work_inputs.flash_only:
+            ratio = stated_far_ratio(cfg, inputs)
             far_pair = FarPair(
                 work_inputs.images["far_flash"],
                 work_inputs.images["far_noflash"],
                 camera=(0.0, 0.0, FAR_DISTANCE),
-                intensity=far_flash_ratio(cfg, inputs, FAR_DISTANCE) * DEFAULT_FLASH_INTENSITY,
+                intensity=None if ratio is None else ratio * DEFAULT_FLASH_INTENSITY,
                 saturated=work_inputs.saturated,
             )
         flash_fit = fit_flash(
