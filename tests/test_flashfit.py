@@ -224,13 +224,38 @@ def test_far_pair_separates_albedo_from_the_lobe(roughness):
     flash, noflash, far_flash, far_noflash, exposure = _near_far_capture(
         _radial_albedo(0.2), (0.04,) * 3, roughness
     )
-    near = fit_flash(flash, noflash, to_radiance=1 / exposure)
-    both = fit_flash(flash, noflash, to_radiance=1 / exposure, far=FarPair(far_flash, far_noflash))
+    rings_only = FlashFitConfig(noflash_albedo=False)
+    near = fit_flash(flash, noflash, to_radiance=1 / exposure, options=rings_only)
+    both = fit_flash(
+        flash, noflash, to_radiance=1 / exposure, far=FarPair(far_flash, far_noflash), options=rings_only
+    )
     assert not both.metal and both.far_pair and not near.far_pair
     assert both.to_json()["far_pair"] is True
     assert abs(both.roughness - roughness) <= 0.03, both.roughness
     assert abs(near.roughness - roughness) > 0.1, near.roughness  # what the far pair fixes
     np.testing.assert_allclose(both.level, near.level, rtol=0.25)  # the level is the near rings'
+
+
+@pytest.mark.parametrize("roughness", [0.6, 0.8])
+def test_noflash_rings_separate_albedo_from_the_lobe(roughness):
+    """The near shots alone: the no-flash shot's rings give each ring's albedo share, so the
+    albedo that falls off like a lobe no longer reads as one (within 0.03, as with the far pair);
+    without them it is read too low (> 0.1 off). The no-flash shot is the albedo's alone (the
+    helper's constant 1e-3 taken out: a term without the albedo dilutes the shares, 0.8 then
+    reads 0.65). The no-flash shot too dark to read leaves the rings at 1."""
+    flash, noflash, *_, exposure = _near_far_capture(_radial_albedo(0.2), (0.04,) * 3, roughness)
+    noflash = noflash - np.float32(1e-3 * exposure)
+    fit = fit_flash(flash, noflash, to_radiance=1 / exposure)
+    plain = fit_flash(flash, noflash, to_radiance=1 / exposure, options=FlashFitConfig(noflash_albedo=False))
+    assert not fit.metal and not fit.far_pair
+    assert abs(fit.roughness - roughness) <= 0.03, fit.roughness
+    assert abs(plain.roughness - roughness) > 0.1, plain.roughness
+    dark = fit_flash(flash, noflash * 1e-3, to_radiance=1 / exposure)
+    assert dark.roughness == pytest.approx(
+        fit_flash(
+            flash, noflash * 1e-3, to_radiance=1 / exposure, options=FlashFitConfig(noflash_albedo=False)
+        ).roughness
+    )
 
 
 def test_far_pair_keeps_a_metal_and_a_uniform_dielectric():
