@@ -109,8 +109,8 @@ def test_defaults_spelled_out():
     assert "[0.1,0.3,0.6,0.9]" in entries["exemplars"]["--roughness"]
     assert RenderConfig() == RenderConfig(spp=None, seed=0)
     assert ValidateConfig().spp == 131072 and "[131072]" in entries["validate"]["--spp"]
-    assert DemoConfig() == DemoConfig(out="ebr-demo", res=None, spp=64, refine_steps=100)
-    assert "[the model grid]" in entries["demo"]["--res"]
+    assert DemoConfig() == DemoConfig(out="ebr-demo", res=256, spp=64, refine_steps=100)
+    assert "[256]" in entries["demo"]["--res"]
     assert GalleryConfig() == GalleryConfig(docs="docs", checkpoint=None, refine_steps=0)
     assert "[docs]" in entries["gallery"]["--docs"] and "[0]" in entries["gallery"]["--refine-steps"]
     assert GenerateRunConfig() == GenerateRunConfig(

@@ -617,7 +617,9 @@ def test_real_model_near_far_and_real_flash_only_photo(tmp_path, capsys, data_di
 
 def test_demo_with_fake_network(tmp_path, capsys, fake_net):
     out = tmp_path / "demo"
-    code = main(["demo", "--out", str(out), "--spp", "4", "--refine-steps", "10", "--json"])
+    # at the fake's grid (the demo's default 256² takes the full-resolution path, which the fake lacks)
+    args = ["demo", "--out", str(out), "--res", str(GRID), "--spp", "4", "--refine-steps", "10", "--json"]
+    code = main(args)
     cap = capsys.readouterr()
     assert code == 0, cap.err
     result = json.loads(cap.out)

@@ -5,8 +5,8 @@
 1. renders the near capture (flash + no-flash) of the default scene with Mitsuba: the material
    and lighting of ``scenes/default.xml`` (a checkerboard diffuse 0.60/0.42/0.25 and
    0.12/0.09/0.07 in 8x8 squares, specular 0.04, roughness 0.35, under the sun + sky SGs of
-   ``scenes/default_env.json``, 10 W/sr flash) into DIR/capture (``ebr capture`` layout, with
-   the ground-truth maps);
+   ``scenes/default_env.json``, 10 W/sr flash), 256² by default, into DIR/capture (``ebr capture``
+   layout, with the ground-truth maps);
 2. runs ``ebr estimate`` on it with refinement into DIR/estimate (report.html there);
 3. compares the maps with the ground truth per map (RMSE, normals as (n+1)/2) before and after
    refinement, and the lighting (RMSE of exemplars rendered under the estimated vs the true SGs);
@@ -41,6 +41,8 @@ HELP = "run the whole pipeline on the bundled default scene and compare with the
 CHECKER_COLORS = ((0.60, 0.42, 0.25), (0.12, 0.09, 0.07))
 CHECKER_SQUARES = 8
 SPECULAR, ROUGHNESS = 0.04, 0.35
+#: The capture's side: the network runs fully convolutionally at this size, without tiles.
+DEMO_RES = 256
 EXEMPLAR_ROUGHNESS = DEFAULT_EXEMPLAR_ROUGHNESS
 
 
@@ -50,9 +52,7 @@ class DemoConfig:
     naming the flag)."""
 
     out: str = option("ebr-demo", "output directory (new, or an earlier demo's)", metavar="DIR")
-    res: int | None = option(
-        None, "capture resolution, square", minimum=1, maximum=MAX_RES, shown="the model grid"
-    )
+    res: int = option(DEMO_RES, "capture resolution, square", minimum=1, maximum=MAX_RES)
     spp: int = option(64, "Mitsuba samples per pixel of the capture", minimum=1)
     refine_steps: int = option(100, "test-time refinement steps (0: none)", minimum=0, flag="--refine-steps")
     checkpoint: str | None = option(None, "model checkpoint", metavar="C", shown="the shipped model")
@@ -240,8 +240,7 @@ def run(args) -> int:
     if cfg.checkpoint is not None and not Path(cfg.checkpoint).is_file():
         raise InputError(f"--checkpoint {cfg.checkpoint}: no such file; omit it for the shipped model")
     predictor = load_predictor(cfg.checkpoint)  # before rendering: a bad checkpoint fails fast
-    grid = int(predictor.grid)
-    res = cfg.res if cfg.res is not None else grid
+    res = cfg.res
     truth, env = default_material(res), default_env()
     timings = {}
 
