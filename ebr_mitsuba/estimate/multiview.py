@@ -91,7 +91,7 @@ import json
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 
@@ -158,6 +158,12 @@ class MultiViewConfig:
     )
     saturation_level: float | None = saturation_option()
     max_size: int = max_size_option("larger views are rectified to it")
+    view_fit: bool = option(
+        True,
+        "the specular F0 and roughness fitted to the nine views (module docstring, 'The multi-view "
+        "specular fit'); --no-view-fit keeps the network's",
+        flag="--view-fit",
+    )
 
 
 MULTIVIEW_FLAGS = tuple(f.name for f in dataclasses.fields(MultiViewConfig))  # all set by flags
@@ -583,8 +589,11 @@ class Scales:
     units with (ones where it was not fitted)."""
 
     a: list[float]
-    b: float
+    b: tuple[float, float, float]
     diffuse: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    residual: float = 0.0  # the views' squared residual at (a, b, α), summed over the masks
+    alpha: np.ndarray | None = field(default=None, compare=False, repr=False)  # (H, W, 3) α per pixel
+    seen: np.ndarray | None = field(default=None, compare=False, repr=False)  # (H, W) α's pixels
 
 
 #: Lighting scales :func:`fit_scales` tries (times b₀, the scale at which the lighting alone
@@ -597,7 +606,9 @@ def _views_sum(x, y, w) -> np.ndarray:
     return np.einsum("nhwc,nhwc,nhw->hwc", x, y, w, optimize=True)
 
 
-def fit_scales(photos, parts: RerenderParts, masks, known: list[float] | None) -> Scales:
+def fit_scales(
+    photos, parts: RerenderParts, masks, known: list[float] | None, colour: bool = False, coarse: bool = False
+) -> Scales:
     """The re-render's scales (module docstring, "Exposure and units") by least squares over
     ``masks`` (in-frame, unsaturated pixels of each view); ``photos`` (N, H, W, 3) per view,
     ``parts`` their :func:`rerender_parts`; ``known``: the flash factors a_k (None: one fitted a).
@@ -620,6 +631,29 @@ def fit_scales(photos, parts: RerenderParts, masks, known: list[float] | None) -
     if known is None:
         return _fit_unknown_flash(p, fd + fs, ed + es, w)
     a = np.asarray(known, np.float64)[:, None, None, None]
+    grid = SCALE_GRID[::4] if coarse else SCALE_GRID  # coarse: the golden-section search finishes
+    if not colour:  # one scale for the three channels
+        b, al, res, seen = _fit_known_flash(p, fd, fs, ed, es, w, a, grid)
+        diffuse = tuple(float(np.median(al[..., c][seen])) if seen.any() else 1.0 for c in range(3))
+        return Scales(list(map(float, known)), (float(b),) * 3, diffuse, res, al.astype(np.float32), seen)
+    bs, alphas, res, seen = [], [], 0.0, None
+    for c in range(3):  # the lighting's scale per channel: its colour is fitted too
+        sl = slice(c, c + 1)
+        b_c, al_c, res_c, seen_c = _fit_known_flash(
+            p[..., sl], fd[..., sl], fs[..., sl], ed[..., sl], es[..., sl], w, a
+        )
+        bs.append(float(b_c))
+        alphas.append(al_c[..., 0])
+        res += res_c
+        seen = seen_c if seen is None else seen & seen_c
+    al = np.stack(alphas, -1)
+    diffuse = tuple(float(np.median(al[..., c][seen])) if seen.any() else 1.0 for c in range(3))
+    return Scales(list(map(float, known)), tuple(bs), diffuse, res, al.astype(np.float32), seen)
+
+
+def _fit_known_flash(p, fd, fs, ed, es, w, a, scale_grid=SCALE_GRID):
+    """(b, α per pixel, residual, pixels α counts over) for known flash factors ``a`` (N, 1, 1, 1),
+    on the channels of the arrays given (:func:`fit_scales`)."""
     r0, r1 = p - a * fs, es  # the views less the specular parts: r0 − b r1
     h0, h1 = a * fd, ed  # the diffuse parts at α = 1: h0 + b h1
     rr = [_views_sum(r0, r0, w), -2 * _views_sum(r0, r1, w), _views_sum(r1, r1, w)]
@@ -636,19 +670,32 @@ def fit_scales(photos, parts: RerenderParts, masks, known: list[float] | None) -
     def residual(b):
         return float(np.sum(quad(rr, b) - alpha(b) * np.maximum(quad(rh, b), 0.0)))
 
+    def residuals(bs) -> np.ndarray:  # residual(b) for each b of bs, a block of b's at a time
+        out = []
+        block = max(1, int(2e6 // max(rr[0].size, 1)))
+        for i in range(0, len(bs), block):
+            b = np.asarray(bs[i : i + block], np.float64).reshape(-1, *([1] * rr[0].ndim))
+            num = np.maximum(quad(rh, b), 0.0)
+            den = quad(hh, b)
+            al = np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0)
+            out.append((quad(rr, b) - al * num).reshape(len(b), -1).sum(1))
+        return np.concatenate(out)
+
     ee = float(np.sum(hh[2] + 2 * _views_sum(h1, r1, w) + rr[2]))  # ‖E_d + E_s‖²
     pe = float(np.sum(_views_sum(p, ed + es, w)))
     b0 = pe / ee if ee > 0 and pe > 0 else 0.0
     b = 0.0
     if b0 > 0:
-        grid = SCALE_GRID * b0
-        res = [residual(x) for x in grid]
+        grid = scale_grid * b0
+        res = residuals(grid)
         k = int(np.argmin(res))
         lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
         g = (math.sqrt(5) - 1) / 2
         x1, x2 = hi - g * (hi - lo), lo + g * (hi - lo)
         r1, r2 = residual(x1), residual(x2)
-        for _ in range(40):  # golden-section search in the best grid cell's neighbourhood
+        for _ in range(
+            40 if scale_grid is SCALE_GRID else 16
+        ):  # golden-section search in the best cell's neighbourhood
             if r1 <= r2:  # the minimum is in [lo, x2]: x1 becomes the upper probe
                 hi, x2, r2 = x2, x1, r1
                 x1 = hi - g * (hi - lo)
@@ -660,8 +707,7 @@ def fit_scales(photos, parts: RerenderParts, masks, known: list[float] | None) -
         b = min((grid[k], (lo + hi) / 2), key=residual)
     al = alpha(b)
     seen = (w.sum(0) >= MIN_VIEWS_PER_PIXEL) & (hh[0] > 0).all(-1)
-    diffuse = tuple(float(np.median(al[..., c][seen])) if seen.any() else 1.0 for c in range(3))
-    return Scales(list(map(float, known)), float(b), diffuse)
+    return b, al, residual(b), seen
 
 
 def _fit_unknown_flash(p, f, e, w) -> Scales:
@@ -687,7 +733,7 @@ def _fit_unknown_flash(p, f, e, w) -> Scales:
         raise InputError(
             "--views: the views show no light from their flashes; check the files, or give --flash-intensity"
         )
-    return Scales([a] * len(p), b)
+    return Scales([a] * len(p), (b, b, b))
 
 
 def scale_diffuse(maps, parts: RerenderParts, factor) -> tuple[object, RerenderParts]:
@@ -699,6 +745,85 @@ def scale_diffuse(maps, parts: RerenderParts, factor) -> tuple[object, RerenderP
     return dataclasses.replace(maps, diffuse=new), dataclasses.replace(
         parts, flash_diffuse=parts.flash_diffuse * ratio, env_diffuse=parts.env_diffuse * ratio
     )
+
+
+# -- the multi-view specular fit ----------------------------------------------------------------
+
+#: The hypotheses of :func:`fit_specular`: a grey F0 (0.04: the dielectrics of the measured table;
+#: the others: metals) times a roughness of the grid, both constant over the sample.
+FIT_F0 = (0.04, 0.25, 0.5, 0.9)
+FIT_ROUGHNESS = tuple(float(x) for x in np.round(np.linspace(0.05, 1.0, 20), 3))
+#: The size the views are area-averaged to for the fit (the maps are then set at the full size).
+FIT_SIZE = 64
+
+
+@dataclass(frozen=True)
+class SpecularFit:
+    """What :func:`fit_specular` finds: the F0 and roughness of lowest residual, whether a metal
+    (F0 above 0.04) won, the residual relative to the network's specular and roughness (< 1: the
+    fit explains the views better), and the grid's residuals (F0 × roughness)."""
+
+    f0: float
+    roughness: float
+    relative_residual: float
+    residuals: np.ndarray
+
+    @property
+    def metal(self) -> bool:
+        return self.f0 > FIT_F0[0]
+
+    def to_json(self) -> dict:
+        return {
+            "f0": self.f0,
+            "roughness": self.roughness,
+            "metal": self.metal,
+            "relative_residual": self.relative_residual,
+            "f0_grid": list(FIT_F0),
+            "roughness_grid": list(FIT_ROUGHNESS),
+        }
+
+
+def fit_specular(
+    maps, lighting, shots, photos, masks, known: list[float], size: int = FIT_SIZE
+) -> SpecularFit:
+    """The specular F0 and roughness, constant over the sample, that re-render the views best
+    (module docstring, "The multi-view specular fit"): for each hypothesis of FIT_F0 × FIT_ROUGHNESS
+    the views' re-render is fitted as by :func:`fit_scales` (known flash factors ``known``, the
+    diffuse factor free per pixel, the lighting's scale b) at ``size`` and its residual compared
+    with that of the network's own specular and roughness maps."""
+
+    def small(a):
+        a = np.asarray(a, np.float32)
+        return a if a.shape[0] == size else resize_area(a, (size, size))
+
+    photos_s = [small(p) for p in photos]
+    masks_s = [small(np.asarray(m, np.float32)[..., None])[..., 0] >= 1 - 1e-6 for m in masks]
+    base = resample_svbrdf(maps, size) if maps.shape != (size, size) else maps
+
+    def residual(f0: float | None, r: float | None) -> float:
+        m = base
+        if f0 is not None:
+            m = dataclasses.replace(
+                base,
+                specular=np.full((size, size, 3), f0, np.float32),
+                roughness=np.full((size, size), r, np.float32),
+            )
+        parts = rerender_parts(m, lighting, shots, size)
+        return fit_scales(photos_s, parts, masks_s, known, colour=True, coarse=True).residual
+
+    # every other roughness of the grid first, then the two beside the best of each F0
+    grid = np.full((len(FIT_F0), len(FIT_ROUGHNESS)), np.inf)
+    for i, f0 in enumerate(FIT_F0):
+        for j in range(0, len(FIT_ROUGHNESS), 2):
+            grid[i, j] = residual(f0, FIT_ROUGHNESS[j])
+        j = int(np.argmin(grid[i]))
+        for jj in (j - 1, j + 1):
+            if 0 <= jj < len(FIT_ROUGHNESS) and not np.isfinite(grid[i, jj]):
+                grid[i, jj] = residual(f0, FIT_ROUGHNESS[jj])
+    i, j = np.unravel_index(int(np.argmin(grid)), grid.shape)
+    network = residual(None, None)
+    rel = float(grid[i, j] / network) if network > 0 else 1.0
+    return SpecularFit(FIT_F0[i], FIT_ROUGHNESS[j], rel, grid)
 
 
 # -- lighting files ---------------------------------------------------------------------------------
@@ -741,11 +866,12 @@ def hemisphere_mosaic(lighting, grid: int = HEMISPHERE_GRID, size: int = HEMISPH
     return mosaic
 
 
-def write_lighting(out: Path, network_lighting, scale: float) -> list[str]:
+def write_lighting(out: Path, network_lighting, scale) -> list[str]:
     """``lighting/`` and ``env.json`` + pictures of the centre pixel (module docstring): the
-    network's lighting times ``scale``."""
+    network's lighting times ``scale`` (R, G, B)."""
     (out / "lighting").mkdir(exist_ok=True)
-    lighting = network_lighting.scaled(scale)
+    scale = [float(x) for x in np.broadcast_to(np.asarray(scale, np.float64), (3,))]
+    lighting = network_lighting.scaled(np.asarray(scale, np.float32))
     amp = lighting.amplitude
     planes = []
     for s in range(lighting.num_sgs):
@@ -770,8 +896,9 @@ def write_lighting(out: Path, network_lighting, scale: float) -> list[str]:
         "visibility * intensity (photo units)",
         "intensity": lighting.intensity.tolist(),
         "network_intensity": network_lighting.intensity.tolist(),
-        "scale": float(scale),
-        "scale_note": "intensity = network_intensity * scale (least squares of the re-renders to the views)",
+        "scale": scale,
+        "scale_note": "intensity = network_intensity * scale per channel (least squares of the re-renders "
+        "to the views)",
     }
     (out / "lighting" / "lighting.json").write_text(json.dumps(meta, indent=1) + "\n")
     irr = lighting_irradiance(lighting)
@@ -810,7 +937,8 @@ class ViewsEstimate:
     network's times b), ``known`` (the flash intensities in photo units, None: fitted) and where
     they came from, ``to_reference`` (each view's factor to the reference exposure), ``warnings``,
     ``diffuse_scale`` (the factor per channel ``maps``' diffuse is the network's times, before
-    clipping to [0, 1]; module docstring, "Exposure and units")."""
+    clipping to [0, 1]; module docstring, "Exposure and units"), ``specular_fit`` (None: not run;
+    ``maps`` carry its F0 and roughness when its relative residual is below 1)."""
 
     shots: list[ViewShot]
     views: RectifiedViews
@@ -821,12 +949,13 @@ class ViewsEstimate:
     flash: np.ndarray
     env: np.ndarray
     a: list[float]
-    b: float
+    b: tuple[float, float, float]
     known: list[float] | None
     known_source: str | None
     to_reference: list[float]
     warnings: list[str]
     diffuse_scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    specular_fit: SpecularFit | None = None
 
     @property
     def names(self) -> list[str]:
@@ -835,7 +964,7 @@ class ViewsEstimate:
     @property
     def lighting(self):
         """The per-pixel lighting in photo units (:class:`~ebr_mitsuba.model.predictor.PixelLighting`)."""
-        return self.prediction.lighting.scaled(self.b)
+        return self.prediction.lighting.scaled(np.asarray(self.b, np.float32))
 
     def masks(self) -> list[np.ndarray]:
         """Per view: the pixels it saw in frame and unsaturated (where the errors count)."""
@@ -844,9 +973,10 @@ class ViewsEstimate:
     def renders(self) -> dict[str, np.ndarray]:
         """Per view: the re-render ``a_k F_k + b E_k`` times the view's in-frame weight."""
         return {
-            n: ((self.a[k] * self.flash[k] + self.b * self.env[k]) * self.views.weights[n][..., None]).astype(
-                np.float32
-            )
+            n: (
+                (self.a[k] * self.flash[k] + np.float32(self.b) * self.env[k])
+                * self.views.weights[n][..., None]
+            ).astype(np.float32)
             for k, n in enumerate(self.names)
         }
 
@@ -922,12 +1052,24 @@ def estimate_views(
     stage("network", t0)
 
     t0 = time.perf_counter()
-    log(f"re-rendering the {VIEW_COUNT} views")
-    parts = rerender_parts(maps, pred.lighting, shots, work)
     photos = [views.images[n] for n in names]
     masks = [(views.weights[n] > 0) & ~views.saturated[n] for n in names]
     factors = [k / DEFAULT_FLASH_INTENSITY for k in known] if known else None
-    scales = fit_scales(photos, parts, masks, factors)
+    specular_fit = None
+    if cfg.view_fit and factors is not None:  # the flash's known level is what separates F0 from albedo
+        log("fitting the specular F0 and roughness to the views")
+        specular_fit = fit_specular(maps, pred.lighting, shots, photos, masks, factors)
+        if specular_fit.relative_residual < 1:
+            maps = dataclasses.replace(
+                maps,
+                specular=np.full((work, work, 3), specular_fit.f0, np.float32),
+                roughness=np.full((work, work), specular_fit.roughness, np.float32),
+            )
+        stage("view fit", t0)
+        t0 = time.perf_counter()
+    log(f"re-rendering the {VIEW_COUNT} views")
+    parts = rerender_parts(maps, pred.lighting, shots, work)
+    scales = fit_scales(photos, parts, masks, factors, colour=specular_fit is not None)
     maps, parts = scale_diffuse(maps, parts, scales.diffuse)
     tick("re-render")
     stage("rerender", t0)
@@ -947,6 +1089,7 @@ def estimate_views(
         to_reference,
         warnings,
         scales.diffuse,
+        specular_fit,
     )
 
 
@@ -1044,10 +1187,11 @@ def run_multiview(
             "lighting": {
                 "per_pixel_sgs": lighting.num_sgs,
                 "grid": list(lighting.shape),
-                "scale": float(est.b),
+                "scale": [float(x) for x in est.b],
                 "diffuse_scale": list(est.diffuse_scale),
                 "centre_pixel": "env.json",
             },
+            "view_fit": None if est.specular_fit is None else est.specular_fit.to_json(),
             "rerender_error": {"network": errors, "refined": None},
             "refine": None,
             "prediction_timings": {k: round(v, 3) for k, v in est.prediction.timings.items()},
