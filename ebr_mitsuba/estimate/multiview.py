@@ -111,7 +111,7 @@ import json
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
@@ -612,8 +612,6 @@ class Scales:
     b: tuple[float, float, float]
     diffuse: tuple[float, float, float] = (1.0, 1.0, 1.0)
     residual: float = 0.0  # the views' squared residual at (a, b, α), summed over the masks
-    alpha: np.ndarray | None = field(default=None, compare=False, repr=False)  # (H, W, 3) α per pixel
-    seen: np.ndarray | None = field(default=None, compare=False, repr=False)  # (H, W) α's pixels
 
 
 #: Lighting scales :func:`fit_scales` tries (times b₀, the scale at which the lighting alone
@@ -627,11 +625,12 @@ def _views_sum(x, y, w) -> np.ndarray:
 
 
 def fit_scales(
-    photos, parts: RerenderParts, masks, known: list[float] | None, colour: bool = False, coarse: bool = False
+    photos, parts: RerenderParts, masks, known: list[float] | None, colour: bool = False
 ) -> Scales:
     """The re-render's scales (module docstring, "Exposure and units") by least squares over
     ``masks`` (in-frame, unsaturated pixels of each view); ``photos`` (N, H, W, 3) per view,
-    ``parts`` their :func:`rerender_parts`; ``known``: the flash factors a_k (None: one fitted a).
+    ``parts`` their :func:`rerender_parts`; ``known``: the flash factors a_k (None: one fitted a);
+    ``colour``: b fitted per channel (the lighting's colour too, as after the view fit; else one b).
 
     With the a_k known, view k is modelled as ``α(p) (a_k F_d,k + b E_d,k) + a_k F_s,k + b E_s,k``
     with a diffuse factor α ≥ 0 free per pixel and channel: the network's diffuse map has no
@@ -651,11 +650,10 @@ def fit_scales(
     if known is None:
         return _fit_unknown_flash(p, fd + fs, ed + es, w)
     a = np.asarray(known, np.float64)[:, None, None, None]
-    grid = SCALE_GRID[::4] if coarse else SCALE_GRID  # coarse: the golden-section search finishes
     if not colour:  # one scale for the three channels
-        b, al, res, seen = _fit_known_flash(p, fd, fs, ed, es, w, a, grid)
+        b, al, res, seen = _fit_known_flash(p, fd, fs, ed, es, w, a)
         diffuse = tuple(float(np.median(al[..., c][seen])) if seen.any() else 1.0 for c in range(3))
-        return Scales(list(map(float, known)), (float(b),) * 3, diffuse, res, al.astype(np.float32), seen)
+        return Scales(list(map(float, known)), (float(b),) * 3, diffuse, res)
     bs, alphas, res, seen = [], [], 0.0, None
     for c in range(3):  # the lighting's scale per channel: its colour is fitted too
         sl = slice(c, c + 1)
@@ -668,10 +666,10 @@ def fit_scales(
         seen = seen_c if seen is None else seen & seen_c
     al = np.stack(alphas, -1)
     diffuse = tuple(float(np.median(al[..., c][seen])) if seen.any() else 1.0 for c in range(3))
-    return Scales(list(map(float, known)), tuple(bs), diffuse, res, al.astype(np.float32), seen)
+    return Scales(list(map(float, known)), tuple(bs), diffuse, res)
 
 
-def _fit_known_flash(p, fd, fs, ed, es, w, a, scale_grid=SCALE_GRID):
+def _fit_known_flash(p, fd, fs, ed, es, w, a):
     """(b, α per pixel, residual, pixels α counts over) for known flash factors ``a`` (N, 1, 1, 1),
     on the channels of the arrays given (:func:`fit_scales`)."""
     r0, r1 = p - a * fs, es  # the views less the specular parts: r0 − b r1
@@ -706,16 +704,14 @@ def _fit_known_flash(p, fd, fs, ed, es, w, a, scale_grid=SCALE_GRID):
     b0 = pe / ee if ee > 0 and pe > 0 else 0.0
     b = 0.0
     if b0 > 0:
-        grid = scale_grid * b0
+        grid = SCALE_GRID * b0
         res = residuals(grid)
         k = int(np.argmin(res))
         lo, hi = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
         g = (math.sqrt(5) - 1) / 2
         x1, x2 = hi - g * (hi - lo), lo + g * (hi - lo)
         r1, r2 = residual(x1), residual(x2)
-        for _ in range(
-            40 if scale_grid is SCALE_GRID else 16
-        ):  # golden-section search in the best cell's neighbourhood
+        for _ in range(40):  # golden-section search in the best grid cell's neighbourhood
             if r1 <= r2:  # the minimum is in [lo, x2]: x1 becomes the upper probe
                 hi, x2, r2 = x2, x1, r1
                 x1 = hi - g * (hi - lo)
@@ -829,7 +825,7 @@ def fit_specular(
                 roughness=np.full((size, size), r, np.float32),
             )
         parts = rerender_parts(m, lighting, shots, size)
-        return fit_scales(photos_s, parts, masks_s, known, colour=True, coarse=True).residual
+        return fit_scales(photos_s, parts, masks_s, known, colour=True).residual
 
     # every other roughness of the grid first, then the two beside the best of each F0
     grid = np.full((len(FIT_F0), len(FIT_ROUGHNESS)), np.inf)
