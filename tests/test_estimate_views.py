@@ -195,38 +195,51 @@ def test_views_above_the_model_grid(model, tmp_path, capsys):
     assert read_exr(out / "lighting" / "lobes.exr", multiview.lobe_channels(3)).shape == (32, 32, 24)
 
 
+def _uniform(n: int, diffuse, roughness: float, f0: float = 0.04):
+    """A flat n × n SVBRDF of one diffuse colour, grey F0 and roughness."""
+    from ebr_mitsuba.svbrdf import SVBRDF
+
+    return SVBRDF(
+        np.tile(np.float32([0, 0, 1]), (n, n, 1)),
+        np.full((n, n, 3), diffuse, np.float32),
+        np.full((n, n, 3), f0, np.float32),
+        np.full((n, n), roughness, np.float32),
+    )
+
+
+class _DarkPredictor:
+    """A views predictor returning ``maps`` and no light (one lobe of zero intensity)."""
+
+    views = 9
+
+    def __init__(self, maps):
+        self.maps, self.grid = maps, maps.shape[0]
+
+    def predict_views(self, views, weights=None, cameras=None):
+        from ebr_mitsuba.model.predictor import PixelLighting, ViewsPrediction
+
+        n = self.grid
+        dark = PixelLighting(
+            np.tile(np.float32([0, 0, 1]), (1, n, n, 1)),
+            np.ones((1, n, n), np.float32),
+            np.zeros((1, n, n), np.float32),
+            np.zeros((1, 3), np.float32),
+        )
+        return ViewsPrediction(self.maps, dark)
+
+
 def test_the_true_maps_re_render_the_capture(tmp_path):
     """Rectification, units and the re-render together: a Mitsuba capture of a uniform material
     under the 9 flashes alone (environment scale 0), estimated as its true maps, re-renders every
     view to within 2 % (relative RMSE over the in-frame pixels; 64 spp)."""
     from ebr_mitsuba.capture import capture
-    from ebr_mitsuba.model.predictor import PixelLighting, ViewsPrediction
-    from ebr_mitsuba.svbrdf import SVBRDF
 
     n = 32
-    maps = SVBRDF(
-        np.tile(np.float32([0, 0, 1]), (n, n, 1)),
-        np.full((n, n, 3), [0.6, 0.4, 0.3], np.float32),
-        np.full((n, n, 3), 0.04, np.float32),
-        np.full((n, n), 0.5, np.float32),
-    )
+    maps = _uniform(n, [0.6, 0.4, 0.3], 0.5)
     cap = tmp_path / "cap"
     capture(maps, None, "multi-view", cap, spp=16, res=n, progress=False)  # the flashes alone
-
-    class Truth:
-        grid, views = n, 9
-
-        def predict_views(self, views, weights=None, cameras=None):
-            dark = PixelLighting(
-                np.tile(np.float32([0, 0, 1]), (1, n, n, 1)),
-                np.ones((1, n, n), np.float32),
-                np.zeros((1, n, n), np.float32),
-                np.zeros((1, 3), np.float32),
-            )
-            return ViewsPrediction(maps, dark)
-
     cfg = multiview.MultiViewConfig(views=str(cap), out=str(tmp_path / "est"))
-    summary = multiview.run_multiview(cfg, predictor=Truth())
+    summary = multiview.run_multiview(cfg, predictor=_DarkPredictor(maps))
     errors = summary["rerender_error"]["network"]
     assert max(errors[v]["rel_rmse"] for v in VIEWS) < 0.01, errors  # measured 0.2–0.3 %
     # without the intensities in capture.json the flash is fitted: the capture's 10 W/sr
@@ -235,7 +248,7 @@ def test_the_true_maps_re_render_the_capture(tmp_path):
         del shot["flash_intensity"]
     (cap / "capture.json").write_text(json.dumps(meta))
     cfg = multiview.MultiViewConfig(views=str(cap), out=str(tmp_path / "fitted"))
-    summary = multiview.run_multiview(cfg, predictor=Truth())
+    summary = multiview.run_multiview(cfg, predictor=_DarkPredictor(maps))
     flash = summary["flash"]["view11_flash"]
     assert flash["source"] == "fitted" and abs(flash["intensity"] - 10.0) < 0.05, flash
     assert summary["rerender_error"]["network"]["mean"]["rel_rmse"] < 0.01
@@ -300,41 +313,27 @@ def test_the_view_fit_reads_roughness_and_f0_off_the_views(tmp_path, roughness):
     roughness 0.95: the fit picks F0 0.04 and the roughness within a grid step (0.05) and its
     maps carry them; with --no-view-fit the network's F0 and roughness stay."""
     from ebr_mitsuba.capture import capture
-    from ebr_mitsuba.model.predictor import PixelLighting, ViewsPrediction
-    from ebr_mitsuba.svbrdf import SVBRDF
 
     n = 32
-    truth = SVBRDF(
-        np.tile(np.float32([0, 0, 1]), (n, n, 1)),
-        np.full((n, n, 3), [0.5, 0.4, 0.3], np.float32),
-        np.full((n, n, 3), 0.04, np.float32),
-        np.full((n, n), roughness, np.float32),
-    )
     cap = tmp_path / "cap"
-    capture(truth, None, "multi-view", cap, spp=64, res=n, seed=0, progress=False)
-    wrong = SVBRDF(
-        truth.normal, truth.diffuse, np.full((n, n, 3), 0.2, np.float32), np.full((n, n), 0.95, np.float32)
+    capture(
+        _uniform(n, [0.5, 0.4, 0.3], roughness),
+        None,
+        "multi-view",
+        cap,
+        spp=64,
+        res=n,
+        seed=0,
+        progress=False,
     )
-
-    class Wrong:
-        grid, views = n, 9
-
-        def predict_views(self, views, weights=None, cameras=None):
-            dark = PixelLighting(
-                np.tile(np.float32([0, 0, 1]), (1, n, n, 1)),
-                np.ones((1, n, n), np.float32),
-                np.zeros((1, n, n), np.float32),
-                np.zeros((1, 3), np.float32),
-            )
-            return ViewsPrediction(wrong, dark)
-
+    wrong = _DarkPredictor(_uniform(n, [0.5, 0.4, 0.3], 0.95, f0=0.2))
     cfg = multiview.MultiViewConfig(views=str(cap), out=str(tmp_path / "e"))
-    est = multiview.estimate_views(cfg, Wrong())
+    est = multiview.estimate_views(cfg, wrong)
     fit = est.specular_fit
     assert fit.f0 == 0.04 and not fit.metal and abs(fit.roughness - roughness) <= 0.051, fit
     assert fit.relative_residual < 1
     assert np.allclose(est.maps.specular, 0.04) and np.allclose(est.maps.roughness, fit.roughness)
-    kept = multiview.estimate_views(dataclasses.replace(cfg, view_fit=False), Wrong())
+    kept = multiview.estimate_views(dataclasses.replace(cfg, view_fit=False), wrong)
     assert kept.specular_fit is None and np.allclose(kept.maps.roughness, 0.95)
 
 
