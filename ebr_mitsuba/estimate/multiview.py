@@ -650,21 +650,17 @@ def fit_scales(
     if known is None:
         return _fit_unknown_flash(p, fd + fs, ed + es, w)
     a = np.asarray(known, np.float64)[:, None, None, None]
-    if not colour:  # one scale for the three channels
-        b, al, res, seen = _fit_known_flash(p, fd, fs, ed, es, w, a)
-        diffuse = tuple(float(np.median(al[..., c][seen])) if seen.any() else 1.0 for c in range(3))
-        return Scales(list(map(float, known)), (float(b),) * 3, diffuse, res)
-    bs, alphas, res, seen = [], [], 0.0, None
-    for c in range(3):  # the lighting's scale per channel: its colour is fitted too
-        sl = slice(c, c + 1)
-        b_c, al_c, res_c, seen_c = _fit_known_flash(
+    groups = [slice(c, c + 1) for c in range(3)] if colour else [slice(None)]  # b per group
+    bs, alphas, res, seen = [], [], 0.0, True
+    for sl in groups:
+        b, al, r, seen_g = _fit_known_flash(
             p[..., sl], fd[..., sl], fs[..., sl], ed[..., sl], es[..., sl], w, a
         )
-        bs.append(float(b_c))
-        alphas.append(al_c[..., 0])
-        res += res_c
-        seen = seen_c if seen is None else seen & seen_c
-    al = np.stack(alphas, -1)
+        bs += [float(b)] * (3 // len(groups))
+        alphas.append(al)
+        res += r
+        seen = seen & seen_g
+    al = np.concatenate(alphas, -1)
     diffuse = tuple(float(np.median(al[..., c][seen])) if seen.any() else 1.0 for c in range(3))
     return Scales(list(map(float, known)), tuple(bs), diffuse, res)
 
@@ -882,11 +878,11 @@ def hemisphere_mosaic(lighting, grid: int = HEMISPHERE_GRID, size: int = HEMISPH
     return mosaic
 
 
-def write_lighting(out: Path, network_lighting, scale) -> list[str]:
+def write_lighting(out: Path, network_lighting, scale: tuple[float, float, float]) -> list[str]:
     """``lighting/`` and ``env.json`` + pictures of the centre pixel (module docstring): the
     network's lighting times ``scale`` (R, G, B)."""
     (out / "lighting").mkdir(exist_ok=True)
-    scale = [float(x) for x in np.broadcast_to(np.asarray(scale, np.float64), (3,))]
+    scale = [float(x) for x in scale]
     lighting = network_lighting.scaled(np.asarray(scale, np.float32))
     amp = lighting.amplitude
     planes = []

@@ -33,11 +33,6 @@ th{background:#f3f3f3}td.l,th.l{text-align:left}.warn{color:#a40}.ok{color:#070}
 THUMBNAIL_SIZE = 512  # pictures larger than this (per side) are embedded as thumbnails
 
 
-def _as_list(x) -> list:
-    """A number or a list of numbers as a list (the multi-view lighting scale is per channel)."""
-    return list(x) if isinstance(x, (list, tuple)) else [x]
-
-
 def _png_bytes(path: Path) -> bytes:
     """The PNG's bytes, or a thumbnail of at most :data:`THUMBNAIL_SIZE` pixels per side (box
     filter on the stored codes) for larger ones (the maps of a 2048² estimate)."""
@@ -219,7 +214,7 @@ def render_report(out: Path, summary: dict) -> str:
                             "renderer",
                             "torch BRDF (nets/mair_render.py): each view's flash + the per-pixel SGs "
                             "(lighting scale "
-                            + " / ".join(f"{x:.4g}" for x in _as_list(summary["lighting"]["scale"]))
+                            + " / ".join(f"{x:.4g}" for x in summary["lighting"]["scale"])  # R / G / B
                             + ", fitted)",
                         ],
                     ]
