@@ -73,7 +73,7 @@ measured table, or 0.25 / 0.5 / 0.9, a metal) and roughness (20 values, 0.05–1
 first, then the two beside the best), constant over the sample, the re-render is fitted to the
 views as above (α per pixel, ``b``) at :data:`FIT_SIZE` and its residual kept; the hypothesis of
 least residual replaces the network's maps when it explains the views better than they do
-(``relative_residual`` < 1 in ``estimate.json`` under ``lighting.view_fit``). Then ``b`` is fitted
+(``relative_residual`` < 1 in ``estimate.json`` under ``view_fit``). Then ``b`` is fitted
 per channel: with the specular known, the lighting's colour is the views' beyond the flash (one
 ``b`` left the network's lighting colour in the albedo: on training samples of real sets, a grey
 fabric's diffuse came out 0.68 / 0.29 / 0.06). Needs the flash intensities (``capture.json`` or
@@ -677,23 +677,22 @@ def _fit_known_flash(p, fd, fs, ed, es, w, a):
     def quad(c, b):
         return c[0] + b * (c[1] + b * c[2])
 
-    def alpha(b):
+    def alpha(b):  # (α, its numerator) at b: a scalar, or (K, 1, 1, 1) for K b's at once
+        num = np.maximum(quad(rh, b), 0.0)
         den = quad(hh, b)
-        return np.where(den > 0, np.maximum(quad(rh, b), 0.0) / np.where(den > 0, den, 1.0), 0.0)
+        return np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0), num
 
-    def residual(b):
-        return float(np.sum(quad(rr, b) - alpha(b) * np.maximum(quad(rh, b), 0.0)))
-
-    def residuals(bs) -> np.ndarray:  # residual(b) for each b of bs, a block of b's at a time
+    def residuals(bs) -> np.ndarray:  # the residual at each b of bs, a block of b's at a time
         out = []
         block = max(1, int(2e6 // max(rr[0].size, 1)))
         for i in range(0, len(bs), block):
             b = np.asarray(bs[i : i + block], np.float64).reshape(-1, *([1] * rr[0].ndim))
-            num = np.maximum(quad(rh, b), 0.0)
-            den = quad(hh, b)
-            al = np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0)
+            al, num = alpha(b)
             out.append((quad(rr, b) - al * num).reshape(len(b), -1).sum(1))
         return np.concatenate(out)
+
+    def residual(b) -> float:
+        return float(residuals([b])[0])
 
     ee = float(np.sum(hh[2] + 2 * _views_sum(h1, r1, w) + rr[2]))  # ‖E_d + E_s‖²
     pe = float(np.sum(_views_sum(p, ed + es, w)))
@@ -717,7 +716,7 @@ def _fit_known_flash(p, fd, fs, ed, es, w, a):
                 x2 = lo + g * (hi - lo)
                 r2 = residual(x2)
         b = min((grid[k], (lo + hi) / 2), key=residual)
-    al = alpha(b)
+    al = alpha(b)[0]
     seen = (w.sum(0) >= MIN_VIEWS_PER_PIXEL) & (hh[0] > 0).all(-1)
     return b, al, residual(b), seen
 
@@ -795,6 +794,16 @@ class SpecularFit:
         }
 
 
+def constant_specular(maps, f0: float, roughness: float):
+    """``maps`` (an (H, W) SVBRDF) with a grey specular ``f0`` and a ``roughness`` constant over it."""
+    h, w = maps.shape
+    return dataclasses.replace(
+        maps,
+        specular=np.full((h, w, 3), f0, np.float32),
+        roughness=np.full((h, w), roughness, np.float32),
+    )
+
+
 def fit_specular(
     maps, lighting, shots, photos, masks, known: list[float], size: int = FIT_SIZE
 ) -> SpecularFit:
@@ -813,13 +822,7 @@ def fit_specular(
     base = resample_svbrdf(maps, size) if maps.shape != (size, size) else maps
 
     def residual(f0: float | None, r: float | None) -> float:
-        m = base
-        if f0 is not None:
-            m = dataclasses.replace(
-                base,
-                specular=np.full((size, size, 3), f0, np.float32),
-                roughness=np.full((size, size), r, np.float32),
-            )
+        m = base if f0 is None else constant_specular(base, f0, r)
         parts = rerender_parts(m, lighting, shots, size)
         return fit_scales(photos_s, parts, masks_s, known, colour=True).residual
 
@@ -1072,11 +1075,7 @@ def estimate_views(
         log("fitting the specular F0 and roughness to the views")
         specular_fit = fit_specular(maps, pred.lighting, shots, photos, masks, factors)
         if specular_fit.relative_residual < 1:
-            maps = dataclasses.replace(
-                maps,
-                specular=np.full((work, work, 3), specular_fit.f0, np.float32),
-                roughness=np.full((work, work), specular_fit.roughness, np.float32),
-            )
+            maps = constant_specular(maps, specular_fit.f0, specular_fit.roughness)
         stage("view fit", t0)
         t0 = time.perf_counter()
     log(f"re-rendering the {VIEW_COUNT} views")
