@@ -90,6 +90,22 @@ def test_texture_pattern_beats_the_constant():
     assert err < 0.3 * const, (err, const)
 
 
+def test_level_of_a_skewed_texture():
+    """Bricks with bright mortar in a tenth of the pixels: the clean level is the albedo's mean per
+    channel, the trimmed mean (which cuts the mortar as the top decile) falls short of it."""
+    yy, xx = np.mgrid[0:RES, 0:RES]
+    mortar = ((yy % 10) == 0).astype(np.float32)[..., None]
+    albedo = (1 - mortar) * np.float32([0.35, 0.12, 0.08]) + mortar * np.float32([0.7, 0.7, 0.7])
+    flash, noflash, exposure = _capture(albedo, (0.04,) * 3, 0.5)
+    clean = fit_flash(flash, noflash, to_radiance=1 / exposure)
+    trimmed = fit_flash(
+        flash, noflash, to_radiance=1 / exposure, options=FlashFitConfig(level_statistic="trimmed")
+    )
+    mean = albedo.reshape(-1, 3).mean(0)
+    np.testing.assert_allclose(clean.level, mean, rtol=0.03)
+    assert (trimmed.level < 0.9 * mean).any(), (trimmed.level, mean)
+
+
 def test_explicit_mask_and_no_clip_level():
     flash, noflash, exposure = _capture(_uniform((0.3, 0.3, 0.3)), (0.04,) * 3, 0.5)
     a = fit_flash(flash, noflash, to_radiance=1 / exposure)
