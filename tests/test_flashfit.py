@@ -300,3 +300,50 @@ def test_far_pair_of_another_size_is_refused():
         fit_flash(flash, noflash, far=FarPair(far_flash[:-1], far_noflash[:-1]))
     with pytest.raises(InputError, match="far saturation mask"):
         fit_flash(flash, noflash, far=FarPair(far_flash, far_noflash, saturated=np.zeros((3, 3), bool)))
+
+
+def _patchy_relief(share: float, spread: float, seed: int = 0):
+    """(H, W, 3) unit normals: flat, except a random ``share`` of the pixels tilted by a normal
+    slope of ``spread`` per axis (the bevels and pits of a glazed tile, seen as a distribution)."""
+    rng = np.random.default_rng(seed)
+    tilted = rng.random((RES, RES)) < share
+    slopes = rng.normal(0.0, spread, (RES, RES, 2)) * tilted[..., None]
+    n = np.dstack([slopes, np.ones((RES, RES))])
+    return (n / np.linalg.norm(n, axis=-1, keepdims=True)).astype(np.float32)
+
+
+def _relief_capture(normal, roughness, albedo=0.3, noise=0.002):
+    """(flash, noflash, exposure) of a dielectric sample with a normal map, as :func:`_capture`."""
+    n = torch.from_numpy(normal).permute(2, 0, 1)[None]
+    d = torch.full((1, 3, RES, RES), albedo)
+    s = torch.full((1, 3, RES, RES), 0.04)
+    r = torch.full((1, 1, RES, RES), float(roughness))
+    flash_only = tb.render_point_light(Maps(n, d, s, r), tb.NEAR_CAMERA)[0].permute(1, 2, 0).numpy()
+    env = np.full_like(flash_only, 0.02 * albedo + 1e-3)
+    exposure = 0.9 / float(np.quantile((flash_only + env).max(-1), 0.99))
+    rng = np.random.default_rng(1)
+    flash = np.clip((flash_only + env) * exposure + rng.normal(0.0, noise, env.shape), 0.0, 1.0)
+    return flash.astype(np.float32), np.clip(env * exposure, 0.0, 1.0).astype(np.float32), exposure
+
+
+@pytest.mark.parametrize("spread", [0.2, 0.4])
+def test_relief_reads_the_sharp_lobe(spread):
+    """Roughness 0.3 with half the pixels tilted: one lobe reads the tilted pixels' glints as a
+    rougher material; the two-lobe profile keeps the flat faces' roughness."""
+    flash, noflash, exposure = _relief_capture(_patchy_relief(0.5, spread), 0.3)
+    plain = fit_flash(flash, noflash, to_radiance=1 / exposure, options=FlashFitConfig(relief=False))
+    fit = fit_flash(flash, noflash, to_radiance=1 / exposure)
+    assert plain.roughness > 0.4, plain.roughness
+    assert fit.relief is not None and fit.relief["broad"] > fit.relief["sharp"] == fit.roughness
+    # the tilted pixels are not exactly a GGX lobe, so the sharp lobe is near, not at, the truth
+    assert abs(fit.roughness - 0.3) <= 0.1, (fit.roughness, fit.relief)
+    assert abs(fit.roughness - 0.3) < abs(plain.roughness - 0.3) - 0.05, (fit.roughness, plain.roughness)
+    assert fit.to_json()["relief"] == fit.relief
+
+
+@pytest.mark.parametrize("roughness", [0.3, 0.5])
+def test_no_relief_on_a_flat_sample(roughness):
+    flash, noflash, exposure = _relief_capture(_patchy_relief(0.0, 0.0), roughness)
+    fit = fit_flash(flash, noflash, to_radiance=1 / exposure)
+    assert fit.relief is None, fit.relief
+    assert abs(fit.roughness - roughness) <= 0.05, fit.roughness

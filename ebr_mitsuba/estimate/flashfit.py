@@ -52,7 +52,8 @@ keeps the residue of a glossy tile's highlight). ``ebr estimate`` then blends it
 shading, the photo's pattern is exact in its texture; chosen on the validation set
 ``configs/data_real_val.toml`` (training materials and maps, not the test split): mean diffuse
 RMSE 0.0619 (photo pattern) / 0.0627 (scaled network map) / 0.0567 (the blend), with the trimmed
-level; with the clean level, weights 0.35 / 0.5 / 0.65 give 0.0534 / 0.0530 / 0.0538. Above 256² the photo pattern's share falls as 256 / size (:meth:`FlashFitConfig.weight_for`:
+level; with the clean level, weights 0.35 / 0.5 / 0.65 give 0.0534 / 0.0530 / 0.0538.
+Above 256² the photo pattern's share falls as 256 / size (:meth:`FlashFitConfig.weight_for`:
 0.25 at 512², 0.125 at 1024²): the photo's per-pixel noise grows as its pixels shrink while the
 network's map sharpens; on a 1024² 64-spp
 validation capture (``procedural:wood:5`` under ``procedural:8``, not a benchmark capture) the
@@ -72,10 +73,31 @@ than NOFLASH_MIN or the far pair is given). The model's ring value is then ``L �
 f̄_s``. Lens vignetting, being in both shots, is in ``p_ring`` too. On the validation captures
 (``configs/data_real_val.toml``, 24, near shots) the roughness RMSE against the truth maps went
 from 0.119 to 0.103 (Rock006 1.00 → 0.76, truth 0.64), on the near shots of the 24 near-far
-validation captures from 0.108 to 0.090. What it cannot see: a normal map's relief broadens the
-highlight as roughness does (a glazed tile of roughness 0.19 with normals spread by 0.13 reads
-0.46), and the environment's own reflection in a glossy sample's no-flash shot is taken for
-albedo.
+validation captures from 0.108 to 0.090. What it cannot see: the environment's own reflection
+in a glossy sample's no-flash shot is taken for albedo.
+
+Relief. A normal map's relief broadens the highlight as roughness does: the pixels of a glazed
+tile's bevels and pits, tilted, catch the flash away from the mirror point, so one lobe fitted to
+the rings reads the tile rough (acg_Tiles011, roughness 0.19 with normals spread by 0.13, read
+0.47 and 0.55 under two maps). The flat faces still give a sharp lobe at the mirror point and the
+tilted pixels a broad skirt, which two lobes fit far better than one. So every pair of grid
+roughnesses is tried as ``w · lobe(r_sharp) + (1 − w) · lobe(r_broad)`` (w in RELIEF_WEIGHTS, F0
+shared), each judged on the rings as a single lobe is (level, residual, clipped-ring floor); when
+the best pair's cost is RELIEF_GAIN (2) times below the best single lobe's and RELIEF_MARGIN
+(1e-4, a 1 % rms ring residual) below it, the relief is taken for the broad lobe and the sharp
+lobe's roughness is the material's (``relief``, default on; the near rings, read with the
+no-flash shares, also when the far pair is given; ``FlashFit.relief`` and estimate.json's
+``flash_fit.relief`` record the pair). The assumption is that the broad lobe is relief, not a
+second, rougher material in the same sample: a sample of two roughnesses side by side would
+come out as its smoother part. On the validation captures (``configs/data_real_val.toml``, 24)
+it took effect in 3: Tiles011 0.47 → 0.19 and 0.55 → 0.31 (truth 0.19), Metal034 0.14 → 0.12
+(truth 0.07); the RMSE of the per-capture roughness against the truth's mean went from 0.112
+to 0.067, the roughness map's RMSE of ``ebr estimate`` from 0.0838 to 0.0746 (on the 24
+near-far validation captures, far pair used, 0.0655 → 0.0650); in none of the other 21 did the
+two lobes win. On synthetic relief (half the pixels
+tilted by slopes of 0.2–0.4, roughness 0.3; ``tests/test_flashfit.py``) one lobe reads 0.42–0.48,
+the sharp lobe 0.33–0.38; below the central ring's size (roughness 0.15 at 128²) the sharp lobe
+is not resolved and can come out at the grid's floor.
 
 The far pair. A near-far capture (``docs/conventions.md``, "Geometry") adds a far flash / no-flash
 pair on the same pixel grid (the far frame is the same sample square), its flash as far as its
@@ -119,6 +141,9 @@ METAL_MARGIN = 0.5  # the metal hypothesis wins when its cost is below this × t
 NOFLASH_MIN = 2e-3  # no-flash photo mean below which its rings are not read (too dark: noise)
 P_RING_MIN = 0.2  # a ring's albedo share read off the no-flash shot is kept within [0.2, 5]
 TRIM = 0.1  # the ring statistic (and the "trimmed" level): the mean of the middle 80 % of the values
+RELIEF_GAIN = 2.0  # two lobes explain the rings this many times better: the sharper one is the roughness
+RELIEF_MARGIN = 1e-4  # ... and by at least this much of the cost (a 1 % rms ring residual: photo noise)
+RELIEF_WEIGHTS = (0.25, 0.5, 0.75)  # the sharper lobe's share of F0 in the two-lobe profile
 LOBE_SHARE = 0.5  # the "clean" level leaves out the pixels whose fitted lobe exceeds half the level
 CLEAN_MIN = 0.1  # ... unless that leaves fewer than 10 % of the pixels (then: the trimmed mean)
 NETWORK_WEIGHT_SIZE = 256  # above this side the photo pattern's weight falls as 1 / size
@@ -166,6 +191,11 @@ class FlashFitConfig:
         "statistic of the albedo level over the per-pixel ratios (module docstring)",
         choices=("trimmed", "clean"),
     )
+    relief: bool = option(
+        True,
+        "near shots alone: a two-lobe profile that fits RELIEF_GAIN times better reads the relief "
+        "as the broad lobe and keeps the sharp one's roughness (module docstring)",
+    )
     noflash_albedo: bool = option(
         True,
         "near shots alone: read each ring's share of the albedo off the no-flash shot (module docstring)",
@@ -201,6 +231,7 @@ class FlashFit:
     metal: bool = False
     specular_rgb: np.ndarray | None = None
     far_pair: bool = False  # the roughness was read off near − far (module docstring, "The far pair")
+    relief: dict | None = None  # the two-lobe profile that won (module docstring, "Relief"), or None
 
     def maps(self, normal: np.ndarray, source: str = "flash fit"):
         """The fitted maps as an :class:`~ebr_mitsuba.svbrdf.SVBRDF` with ``normal`` (H, W, 3):
@@ -235,6 +266,7 @@ class FlashFit:
             "diffuse_level": [round(float(x), 4) for x in self.level],
             "metal": self.metal,
             "far_pair": self.far_pair,
+            "relief": self.relief,
         }
 
 
@@ -401,12 +433,14 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
     use_far = bool(far_use.any())
     # near shots alone: each ring's albedo share p, its no-flash mean over the same kept pixels
     # relative to all rings' ("The no-flash rings"); 1 with the far pair or without a usable shot
-    p_ring = torch.ones(opts.bins, dtype=torch.float64)
-    if opts.noflash_albedo and not use_far:
+    # (the relief check reads the near rings with it either way)
+    p_noflash = torch.ones(opts.bins, dtype=torch.float64)
+    if opts.noflash_albedo:
         q = ring_mean(nf_grey.clamp_min(0.0))
         q_ok = usable & (ring_count >= 4)
         if int(q_ok.sum()) >= 3 and float(q[q_ok].mean()) > NOFLASH_MIN:
-            p_ring = torch.where(q_ok, q / q[q_ok].mean(), p_ring).clamp(P_RING_MIN, 1 / P_RING_MIN)
+            p_noflash = torch.where(q_ok, q / q[q_ok].mean(), p_noflash).clamp(P_RING_MIN, 1 / P_RING_MIN)
+    p_ring = torch.ones(opts.bins, dtype=torch.float64) if use_far else p_noflash
 
     # dielectric: g = L·p + lobe (F0 = f0); metal: g = m · lobe / f0 (no diffuse, F0 = m); with the far
     # rings, both judged again on near − far
@@ -414,11 +448,13 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
     metal_costs = torch.zeros(len(grid), dtype=torch.float64)
     diff_costs = torch.zeros(len(grid), dtype=torch.float64)
     metal_diff_costs = torch.zeros(len(grid), dtype=torch.float64)
+    s_rings = torch.zeros(len(grid), opts.bins, dtype=torch.float64)
     for i, r in enumerate(grid.tolist()):
         s_pixels = lobe_pixels(r)
         s_ring = lobe(ring_v, r)
         if use_mean:  # a lobe sharper than the central ring must show in its mean, as in the data's
             s_ring = torch.where(usable, ring_mean(s_pixels), s_ring)
+        s_rings[i] = s_ring
         level = ((ring_med[usable] - s_ring[usable]) / p_ring[usable]).median().clamp_min(1e-4)
         extra = floor_cost(level * p_ring + s_ring, level) + saturation_cost(level + s_pixels)
         residual = ring_med[usable] - level * p_ring[usable] - s_ring[usable]
@@ -440,8 +476,54 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
         costs, metal_costs = diff_costs, metal_diff_costs
         best, best_metal = int(torch.argmin(costs)), int(torch.argmin(metal_costs))
     if metal:
-        return float(grid[best_metal]), True, grid.numpy(), metal_costs.numpy(), bool(far_use.any())
-    return float(grid[best]), False, grid.numpy(), costs.numpy(), bool(far_use.any())
+        return float(grid[best_metal]), True, grid.numpy(), metal_costs.numpy(), bool(far_use.any()), None
+    r_best, relief = float(grid[best]), None
+    if opts.relief:
+        rings = (ring_med, p_noflash, usable, ring_floor, clipped_rings)
+        relief = _relief(s_rings, grid, rings)
+        if relief is not None:
+            r_best = relief["sharp"]
+    return r_best, False, grid.numpy(), costs.numpy(), bool(far_use.any()), relief
+
+
+def _ring_costs(model_lobes, ring_med, p_ring, usable, ring_floor, clipped_rings):
+    """((P,) cost, (P,) level) of each of P lobe profiles (P, bins) over the rings: the level
+    solved as in the grid search, the mean squared relative residual plus the clipped rings'
+    floor term."""
+    g, p, lobes = ring_med[usable], p_ring[usable], model_lobes[:, usable]
+    level = ((g - lobes) / p).median(dim=1).values.clamp_min(1e-4)
+    cost = ((g - level[:, None] * p - lobes) / level[:, None]).pow(2).mean(1)
+    if clipped_rings.any():
+        model = level[:, None] * p_ring[clipped_rings] + model_lobes[:, clipped_rings]
+        cost = cost + ((ring_floor[clipped_rings] - model) / level[:, None]).clamp_min(0.0).pow(2).mean(1)
+    return cost, level
+
+
+def _relief(s_rings, grid, rings) -> dict | None:
+    """The two-lobe profile (module docstring, "Relief"). ``s_rings`` (R, bins) each grid
+    roughness's ring lobe, ``rings`` the ring data of :func:`_ring_costs`. Every pair of grid
+    roughnesses is tried, the sharper lobe with each share of RELIEF_WEIGHTS, and judged on the
+    rings as every single lobe is (the saturation term is left out: it differs little between
+    profiles and would drown the rings' difference). Returns ``sharp``, ``broad``, ``weight``,
+    ``gain``, ``single_cost`` when the best pair's cost is RELIEF_GAIN times below the best single
+    lobe's and RELIEF_MARGIN below it, else None."""
+    single = float(_ring_costs(s_rings, *rings)[0].min())
+    i, j = torch.triu_indices(len(grid), len(grid), 1)
+    weights = torch.tensor(RELIEF_WEIGHTS, dtype=torch.float64)
+    mixed = weights[:, None, None] * s_rings[i][None] + (1 - weights[:, None, None]) * s_rings[j][None]
+    costs = _ring_costs(mixed.reshape(-1, s_rings.shape[1]), *rings)[0]
+    k = int(torch.argmin(costs))
+    gain = single / max(float(costs[k]), 1e-30)
+    if gain < RELIEF_GAIN or single - float(costs[k]) < RELIEF_MARGIN:
+        return None
+    w, pair = divmod(k, len(i))
+    return {
+        "sharp": float(grid[i[pair]]),
+        "broad": float(grid[j[pair]]),
+        "weight": float(weights[w]),
+        "gain": round(gain, 2),
+        "single_cost": float(f"{single:.3g}"),
+    }
 
 
 def _lobe(v: torch.Tensor, r: float, f0: float) -> torch.Tensor:
@@ -552,7 +634,9 @@ def fit_flash(
         far = None if far is None else far.shrunk(f)
     else:
         small = (flash, noflash, saturated)
-    r_fit, metal, grid, costs, used_far = _profile(*small, to_radiance, intensity, camera, clip, opts, far)
+    r_fit, metal, grid, costs, used_far, relief = _profile(
+        *small, to_radiance, intensity, camera, clip, opts, far
+    )
 
     # the maps at full size (float32)
     fl = torch.from_numpy(flash).reshape(-1, 3)
@@ -601,4 +685,5 @@ def fit_flash(
         metal=False,
         specular_rgb=np.full(3, opts.f0, np.float32),
         far_pair=used_far,
+        relief=relief,
     )
