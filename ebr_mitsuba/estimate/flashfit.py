@@ -193,8 +193,8 @@ class FlashFitConfig:
     )
     relief: bool = option(
         True,
-        "near shots alone: a two-lobe profile that fits RELIEF_GAIN times better reads the relief "
-        "as the broad lobe and keeps the sharp one's roughness (module docstring)",
+        "a two-lobe profile of the near rings that fits RELIEF_GAIN times better than one lobe reads "
+        "the relief as the broad lobe and keeps the sharp one's roughness (module docstring)",
     )
     noflash_albedo: bool = option(
         True,
@@ -518,8 +518,8 @@ def _relief(s_rings, grid, rings) -> dict | None:
         return None
     w, pair = divmod(k, len(i))
     return {
-        "sharp": float(grid[i[pair]]),
-        "broad": float(grid[j[pair]]),
+        "sharp": round(float(grid[i[pair]]), 4),
+        "broad": round(float(grid[j[pair]]), 4),
         "weight": float(weights[w]),
         "gain": round(gain, 2),
         "single_cost": float(f"{single:.3g}"),
