@@ -19,12 +19,16 @@ from ebr_mitsuba.nets.maps import Maps
 RES = 128
 
 
-def _capture(diffuse, specular, roughness, ambient=0.02, meter=0.9, seed=0, noise=0.0):
-    """(flash, noflash, exposure) photos of a flat sample: flash-only render + a constant ambient
-    term, exposed so that the 99th percentile of the flash photo sits at ``meter``, clipped at 1."""
+def _capture(diffuse, specular, roughness, ambient=0.02, meter=0.9, seed=0, noise=0.0, normal=None):
+    """(flash, noflash, exposure) photos of a sample, flat unless ``normal`` (H, W, 3) is given:
+    flash-only render + a constant ambient term, exposed so that the 99th percentile of the flash
+    photo sits at ``meter``, clipped at 1."""
     h = w = RES
-    normal = torch.zeros(1, 3, h, w)
-    normal[:, 2] = 1
+    if normal is None:
+        normal = torch.zeros(1, 3, h, w)
+        normal[:, 2] = 1
+    else:
+        normal = torch.from_numpy(np.asarray(normal, np.float32)).permute(2, 0, 1)[None]
     d = torch.as_tensor(np.asarray(diffuse, np.float32)).permute(2, 0, 1)[None]
     s = torch.tensor(specular, dtype=torch.float32).view(1, 3, 1, 1).expand(1, 3, h, w)
     r = torch.full((1, 1, h, w), float(roughness))
@@ -312,18 +316,9 @@ def _patchy_relief(share: float, spread: float, seed: int = 0):
     return (n / np.linalg.norm(n, axis=-1, keepdims=True)).astype(np.float32)
 
 
-def _relief_capture(normal, roughness, albedo=0.3, noise=0.002):
-    """(flash, noflash, exposure) of a dielectric sample with a normal map, as :func:`_capture`."""
-    n = torch.from_numpy(normal).permute(2, 0, 1)[None]
-    d = torch.full((1, 3, RES, RES), albedo)
-    s = torch.full((1, 3, RES, RES), 0.04)
-    r = torch.full((1, 1, RES, RES), float(roughness))
-    flash_only = tb.render_point_light(Maps(n, d, s, r), tb.NEAR_CAMERA)[0].permute(1, 2, 0).numpy()
-    env = np.full_like(flash_only, 0.02 * albedo + 1e-3)
-    exposure = 0.9 / float(np.quantile((flash_only + env).max(-1), 0.99))
-    rng = np.random.default_rng(1)
-    flash = np.clip((flash_only + env) * exposure + rng.normal(0.0, noise, env.shape), 0.0, 1.0)
-    return flash.astype(np.float32), np.clip(env * exposure, 0.0, 1.0).astype(np.float32), exposure
+def _relief_capture(normal, roughness, albedo=0.3):
+    """:func:`_capture` of a grey dielectric with a normal map, under photo noise."""
+    return _capture(_uniform((albedo,) * 3), (0.04,) * 3, roughness, noise=0.002, normal=normal)
 
 
 @pytest.mark.parametrize("spread", [0.2, 0.4])

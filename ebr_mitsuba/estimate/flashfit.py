@@ -455,10 +455,11 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
         if use_mean:  # a lobe sharper than the central ring must show in its mean, as in the data's
             s_ring = torch.where(usable, ring_mean(s_pixels), s_ring)
         s_rings[i] = s_ring
-        level = ((ring_med[usable] - s_ring[usable]) / p_ring[usable]).median().clamp_min(1e-4)
-        extra = floor_cost(level * p_ring + s_ring, level) + saturation_cost(level + s_pixels)
-        residual = ring_med[usable] - level * p_ring[usable] - s_ring[usable]
-        costs[i] = (residual / level).pow(2).mean() + extra
+        fit, floor, level = (
+            x[0] for x in _ring_costs(s_ring[None], ring_med, p_ring, usable, ring_floor, clipped_rings)
+        )
+        extra = floor + saturation_cost(level + s_pixels)
+        costs[i] = fit + extra
         unit_ring = s_ring / opts.f0
         m = (ring_med[usable] / unit_ring[usable].clamp_min(1e-12)).median().clamp(1e-4, 1.0)
         metal_extra = floor_cost(m * unit_ring, ring_scale) + saturation_cost(m * s_pixels / opts.f0)
@@ -487,16 +488,18 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
 
 
 def _ring_costs(model_lobes, ring_med, p_ring, usable, ring_floor, clipped_rings):
-    """((P,) cost, (P,) level) of each of P lobe profiles (P, bins) over the rings: the level
-    solved as in the grid search, the mean squared relative residual plus the clipped rings'
-    floor term."""
+    """(P,) each of the fit term, the clipped rings' floor term and the level of P lobe profiles
+    (P, bins) over the rings: the level ``median((g − lobe) / p)`` over the usable rings, the fit
+    term the mean squared residual relative to it; the profile's cost is fit + floor (+ the
+    saturation term, per pixel, in :func:`_profile`)."""
     g, p, lobes = ring_med[usable], p_ring[usable], model_lobes[:, usable]
     level = ((g - lobes) / p).median(dim=1).values.clamp_min(1e-4)
-    cost = ((g - level[:, None] * p - lobes) / level[:, None]).pow(2).mean(1)
+    fit = ((g - level[:, None] * p - lobes) / level[:, None]).pow(2).mean(1)
+    floor = torch.zeros_like(fit)
     if clipped_rings.any():
         model = level[:, None] * p_ring[clipped_rings] + model_lobes[:, clipped_rings]
-        cost = cost + ((ring_floor[clipped_rings] - model) / level[:, None]).clamp_min(0.0).pow(2).mean(1)
-    return cost, level
+        floor = ((ring_floor[clipped_rings] - model) / level[:, None]).clamp_min(0.0).pow(2).mean(1)
+    return fit, floor, level
 
 
 def _relief(s_rings, grid, rings) -> dict | None:
@@ -507,11 +510,13 @@ def _relief(s_rings, grid, rings) -> dict | None:
     profiles and would drown the rings' difference). Returns ``sharp``, ``broad``, ``weight``,
     ``gain``, ``single_cost`` when the best pair's cost is RELIEF_GAIN times below the best single
     lobe's and RELIEF_MARGIN below it, else None."""
-    single = float(_ring_costs(s_rings, *rings)[0].min())
+    fit, floor, _ = _ring_costs(s_rings, *rings)
+    single = float((fit + floor).min())
     i, j = torch.triu_indices(len(grid), len(grid), 1)
     weights = torch.tensor(RELIEF_WEIGHTS, dtype=torch.float64)
     mixed = weights[:, None, None] * s_rings[i][None] + (1 - weights[:, None, None]) * s_rings[j][None]
-    costs = _ring_costs(mixed.reshape(-1, s_rings.shape[1]), *rings)[0]
+    fit, floor, _ = _ring_costs(mixed.reshape(-1, s_rings.shape[1]), *rings)
+    costs = fit + floor
     k = int(torch.argmin(costs))
     gain = single / max(float(costs[k]), 1e-30)
     if gain < RELIEF_GAIN or single - float(costs[k]) < RELIEF_MARGIN:
