@@ -114,6 +114,7 @@ def config_sections() -> list[tuple[str, str, type, object]]:
     from .estimate.photometric import PhotometricConfig
     from .estimate.pipeline import EstimateConfig
     from .estimate.refine import RefineConfig
+    from .estimate.shading_normals import ShadingNormalsConfig
     from .exemplar.images import ExemplarsConfig
     from .exemplar.select import SELECT_PRESETS, SelectConfig
     from .extract.config import EXTRACT_PRESETS, ExtractConfig
@@ -141,6 +142,7 @@ def config_sections() -> list[tuple[str, str, type, object]]:
         ("`ebr select-exemplars` (SelectConfig, preset `default`)", "", SelectConfig, None),
         ("`ebr estimate` (EstimateConfig)", "", EstimateConfig, None),
         ("the flash-profile fit (FlashFitConfig)", "", FlashFitConfig, None),
+        ("the normals from the shading (ShadingNormalsConfig)", "", ShadingNormalsConfig, None),
         ("test-time refinement (RefineConfig)", "", RefineConfig, None),
         ("`ebr estimate --lights` (FiveLightConfig)", "", FiveLightConfig, None),
         ("the photometric fit of `--lights` (PhotometricConfig)", "", PhotometricConfig, None),

@@ -919,3 +919,33 @@ def test_a_near_far_capture_uses_the_shipped_near_far_model(tmp_path, capsys):
     summary = json.loads(stdout)
     assert summary["model"] == {"checkpoint": str(shipped_model_path()), "takes_far": False}
     assert summary["flash_fit"]["far_pair"] is False
+
+
+def test_shading_normals_follow_the_relief_and_can_be_switched_off(tmp_path, capsys):
+    """A tiled sample whose grout is both darker and lower than the tiles (procedural:tiles), under
+    a sun: the default normals come from the flash / no-flash shading (estimate.json records the
+    fit) and are closer to the truth than the network's (--no-shading-normals), whose run records
+    none."""
+    from ebr_mitsuba.capture import capture
+    from ebr_mitsuba.materials import load_material_dir
+    from ebr_mitsuba.metrics import map_rmse
+
+    cap = tmp_path / "cap"
+    capture("procedural:tiles:1", ENV, "near", cap, spp=16, res=128, progress=False)
+    shots = ["--flash", cap / "flash.exr", "--noflash", cap / "noflash.exr"]
+    code, stdout, err = _estimate([*shots, "--out", tmp_path / "sn", "--json"], capsys)
+    assert code == 0, err
+    record = json.loads(stdout)["shading_normals"]
+    assert record["applied"] is True and record["glint_ratio"] <= 1.0
+    assert record["coefficient"] > 0 and record["pixels"] > 0
+    code, stdout, err = _estimate(
+        [*shots, "--out", tmp_path / "net", "--no-shading-normals", "--json"], capsys
+    )
+    assert code == 0, err
+    assert json.loads(stdout)["shading_normals"] is None
+    truth = load_material_dir(cap / "maps")
+    shaded, network = (
+        load_material_dir(tmp_path / "sn" / "maps"),
+        load_material_dir(tmp_path / "net" / "maps"),
+    )
+    assert map_rmse(shaded, truth)["normal"] < 0.8 * map_rmse(network, truth)["normal"]

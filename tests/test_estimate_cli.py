@@ -40,10 +40,14 @@ def test_every_option_is_a_config_field_and_every_field_a_flag():
     flags = {tc.flag_name(cls, n) for cls, names in CONFIGS for n in names}
     bool_negations = {
         "--no-" + tc.flag_name(cls, name)[2:]
-        for cls, name in ((EstimateConfig, "flash_fit"), (MultiViewConfig, "view_fit"))
-    }  # --no-flash-fit, --no-view-fit
+        for cls, name in (
+            (EstimateConfig, "flash_fit"),
+            (EstimateConfig, "shading_normals"),
+            (MultiViewConfig, "view_fit"),
+        )
+    }  # --no-flash-fit, --no-shading-normals, --no-view-fit
     assert options - NOT_CONFIG - bool_negations == flags
-    assert "--no-flash-fit" in options and "--no-view-fit" in options
+    assert {"--no-flash-fit", "--no-shading-normals", "--no-view-fit"} <= options
     # every field of EstimateConfig (but the nested RefineConfig) and FiveLightConfig is a flag
     assert set(ESTIMATE_FLAGS) == {f.name for f in dataclasses.fields(EstimateConfig)} - {"refine"}
     assert set(FIVELIGHT_FLAGS) == {f.name for f in dataclasses.fields(FiveLightConfig)}

@@ -258,6 +258,22 @@ class FlashFit:
         blend = ((1.0 - weight) * self.diffuse + weight * scaled).astype(np.float32)
         return replace(self, diffuse=blend)
 
+    def with_normals(self, normal: np.ndarray, camera=(0.0, 0.0, NEAR_DISTANCE)) -> FlashFit:
+        """The fit with its diffuse map read for ``normal`` (H, W, 3) instead of flat normals: the
+        photo's pattern divided by the normals' flash shading relative to a flat sample's,
+        ``(n·l) / l_z`` over its mean (the level is kept); a metal keeps no diffuse."""
+        n = np.asarray(normal, np.float64)
+        if n.shape != self.diffuse.shape:
+            raise InputError(f"flash fit: the normal map is {n.shape}; expected {self.diffuse.shape}")
+        if self.metal:
+            return self
+        h, w = n.shape[:2]
+        light = view_directions(h, w, camera)  # the flash is at the camera
+        shade = np.maximum((n * light).sum(-1), 1e-3) / light[..., 2]
+        shade /= shade.mean()
+        diffuse = np.clip(self.diffuse / shade[..., None], 0.0, 1.0).astype(np.float32)
+        return replace(self, diffuse=diffuse)
+
     def to_json(self) -> dict:
         rgb = self.specular_rgb if self.specular_rgb is not None else np.full(3, self.f0)
         return {

@@ -147,6 +147,12 @@ class EstimateConfig:
         "diffuse, specular and roughness from the flash-profile fit (estimate/flashfit.py); "
         "--no-flash-fit keeps the network's maps"
     )
+    shading_normals: bool = option(
+        True,
+        "normals from the albedo texture scaled by the flash / no-flash shading "
+        "(estimate/shading_normals.py); --no-shading-normals keeps the network's normals",
+        flag="--shading-normals",
+    )
 
 
 ESTIMATE_FLAGS = tuple(  # the fields ebr estimate sets from flags (refine: its own REFINE_FLAGS)
@@ -493,7 +499,7 @@ def run_estimate(
         tiles, tile, ensemble = len(pred.tiles), pred.tile, list(pred.members)
         stage("maps", t0)
 
-    flash_fit = None
+    flash_fit, shading = None, None
     if cfg.flash_fit:
         from .flashfit import FarPair, FlashFitConfig, fit_flash
 
@@ -528,10 +534,27 @@ def run_estimate(
             options=fit_options,
             far=far_pair,
         )
+        stage("flash fit", t0)
+        normal, source = maps.normal, "ebr estimate (network normals, flash fit)"
+        if cfg.shading_normals and not flash_fit.metal and not inputs.flash_only:
+            from .shading_normals import normals_for
+
+            t0 = time.perf_counter()
+            shading, fitted = normals_for(
+                flash_fit,
+                flash_img,
+                noflash_img,
+                camera_height=near_distance(inputs.fov),
+                saturated=work_inputs.saturated,
+                log=log,
+            )
+            if fitted is not None:  # the photo pattern's shading is the relief's, not the albedo's
+                flash_fit = flash_fit.with_normals(fitted, camera=(0.0, 0.0, near_distance(inputs.fov)))
+                normal, source = fitted, "ebr estimate (shading normals, flash fit)"
+            stage("shading normals", t0)
         weight = fit_options.weight_for(max(flash_img.shape[:2]))
         flash_fit = flash_fit.with_network_diffuse(np.asarray(maps.diffuse), weight)
-        maps = flash_fit.maps(maps.normal, "ebr estimate (network normals, flash fit)")
-        stage("flash fit", t0)
+        maps = flash_fit.maps(normal, source)
 
     t0 = time.perf_counter()
     log(f"re-rendering the shots at {work}x{work}")
@@ -604,6 +627,7 @@ def run_estimate(
             "source": known_source or "none (the reference exposure assumed)",
         },
         "flash_fit": None if flash_fit is None else flash_fit.to_json(),
+        "shading_normals": shading,
         "lobes": 0 if final_env is None else final_env.num_lobes,
         "rerender_error": {"network": net_errors, "refined": final_errors if refined else None},
         "refine": None
