@@ -14,3 +14,17 @@ def test_normal_structure_caps_each_sample_at_the_truth():
     flat_elsewhere = normal_structure([0.026, 0.003, 0.003], [0.004, 0.2, 0.15])
     assert flat_elsewhere == pytest.approx((1.0 + 0.015 + 0.02) / 3)
     assert flat_elsewhere < 0.5
+
+
+def test_baseline_lines_name_each_row_or_why_it_is_missing():
+    from ebr_mitsuba.bench.models import NO_EXEMPLARS, PREVIOUS, _baseline_lines
+
+    some = {"shipped model": {}, "oracle constant": {}}
+    text = " ".join(_baseline_lines(some))
+    assert "(ii) the training-set mean maps, not in this run (set `EBR_TRAIN_DATA`)" in text
+    assert "(iii) the previously shipped model, row *shipped model*" in text
+    assert f"not in this run (name it `{NO_EXEMPLARS}`" in text
+    full = {**some, "training-set mean maps": {}, PREVIOUS: {}, NO_EXEMPLARS: {}}
+    text = " ".join(_baseline_lines(full))
+    assert "not in this run" not in text
+    assert f"row *{PREVIOUS}*" in text and f"row *{NO_EXEMPLARS}*" in text

@@ -493,3 +493,34 @@ def test_bench_models_page(tiny, tiny_nf, tiny_model, tmp_path, monkeypatch):
     monkeypatch.setenv("EBR_REFINE", "[1]")
     with pytest.raises(InputError, match="EBR_REFINE"):
         models.run(tmp_path / "docs3", quick=True, log=lambda msg: None)
+
+
+def test_init_nets_takes_only_the_named_nets(tiny, tiny_model, tmp_path):
+    """``[train] init_nets``: the named nets start from ``init``, the others from their own seeded
+    initialisation; a name the checkpoint lacks is refused with the fix."""
+    import torch
+
+    from ebr_mitsuba.errors import InputError
+
+    init = ck.load_checkpoint(tiny_model, expect_kind="ebrenv")["model"]
+
+    def weights(nets: list[str], out: Path) -> dict:
+        doc = _smoke_doc(FIXTURE_CONFIG, tiny)
+        doc["stages"] = dict.fromkeys(PHASES, 0)  # no step: the weights are the initial ones
+        doc["train"].update(init=str(tiny_model), init_nets=nets)
+        _train(doc, out)
+        return ck.load_checkpoint(out / "model.pt", expect_kind="ebrenv")["model"]
+
+    def same(a: dict, b: dict) -> bool:
+        return all(torch.equal(a[k].float(), b[k].float()) for k in a)
+
+    only = weights(["lighting"], tmp_path / "lighting")
+    assert same(only["lighting"], init["lighting"])
+    assert not same(only["cascade"], init["cascade"])  # trained weights differ from a fresh net's
+    both = weights([], tmp_path / "all")
+    assert same(both["lighting"], init["lighting"]) and same(both["cascade"], init["cascade"])
+
+    doc = _smoke_doc(FIXTURE_CONFIG, tiny)
+    doc["train"].update(init=str(tiny_model), init_nets=["mair"])
+    with pytest.raises(InputError, match=r"has no mair weights.*init_nets"):
+        _train(doc, tmp_path / "bad")

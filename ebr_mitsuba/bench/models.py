@@ -68,14 +68,16 @@ export EBR_DATA_DIR=../shared/data EBR_SPLIT_DATA=/tmp/ebr-data/real_test \\
        EBR_TRAIN_DATA=/tmp/ebr-data/real_train
 ebr generate configs/data_real_test.toml --out $EBR_SPLIT_DATA --workers 2    # metered, Mitsuba 256 spp
 ebr generate configs/data_real_train.toml --out $EBR_TRAIN_DATA --workers 2   # for the mean-maps baseline
-EBR_INIT=$PWD/ebr_mitsuba/models/ebrenv_small.pt ebr train configs/train_real.toml --out /tmp/ebr-runs/real
 export EBR_NEAR_FAR_DATA=/tmp/ebr-data/real_nf_test  # the near-far section (optional)
 ebr generate configs/data_real_near_far_test.toml --out $EBR_NEAR_FAR_DATA --workers 2
 ebr generate configs/data_real_near_far_train.toml --out /tmp/ebr-data/real_nf_train --workers 2
 EBR_TRAIN_DATA=/tmp/ebr-data/real_nf_train EBR_INIT=$PWD/ebr_mitsuba/models/ebrenv_small.pt \\
   ebr train configs/train_real_near_far.toml --out /tmp/ebr-runs/real_nf \\
   --export ebr_mitsuba/models/ebrenv_near_far.pt   # the shipped near-far model
-EBR_SHIPPED_RUN=/tmp/ebr-runs/real EBR_CANDIDATES="NAME=CHECKPOINT;..." EBR_REFINE='{"steps": 100}' \\
+ebr generate configs/data_small_train.toml --out /tmp/ebr-data/small_train --workers 2
+EBR_TRAIN_DATA=/tmp/ebr-data/small_train EBR_INIT=$PWD/ebr_mitsuba/models/ebrenv_small.pt \\
+  ebr train configs/train_small_noexemplars.toml --out /tmp/ebr-runs/noexemplars  # baseline (iv)
+EBR_CANDIDATES="model without exemplars=/tmp/ebr-runs/noexemplars/model.pt" EBR_REFINE='{"steps": 100}' \\
   ebr bench models  # this page"""
 
 
@@ -652,6 +654,34 @@ def _model_card(summary: dict | None, run_dir: str | None) -> list[str]:
     return lines + ["", "![training loss per phase](models_loss.png)", ""]
 
 
+PREVIOUS = "previously shipped model"  # the EBR_CANDIDATES name of baseline (iii)
+NO_EXEMPLARS = "model without exemplars"  # ... and of baseline (iv)
+
+
+def _baseline_lines(results: dict) -> list[str]:
+    """Where the protocol's four baselines (issue 15) are in the table, or why one is missing."""
+
+    def row(name: str, missing: str) -> str:
+        return f"row *{name}*" if name in results else f"not in this run ({missing})"
+
+    previous = (
+        f"row *{PREVIOUS}*"
+        if PREVIOUS in results
+        else "row *shipped model*: no checkpoint named so in `EBR_CANDIDATES`, the shipped "
+        "`ebrenv_small.pt` has not been replaced by a newer model, so it is the previous one"
+    )
+    return [
+        "Baselines of the protocol: (i) each test material's own constant mean maps, row *oracle "
+        "constant*; (ii) the training-set mean maps, "
+        + row("training-set mean maps", "set `EBR_TRAIN_DATA`")
+        + f"; (iii) the previously shipped model, {previous}; (iv) the same network trained without "
+        "exemplars (`configs/train_small_noexemplars.toml`), "
+        + row(NO_EXEMPLARS, f"name it `{NO_EXEMPLARS}` in `EBR_CANDIDATES`")
+        + ".",
+        "",
+    ]
+
+
 def _page(
     results: dict,
     ds,
@@ -727,6 +757,7 @@ def _page(
         "The paper's row is for orientation only: it is measured on another test set (MatSynth renders) with "
         "paper-size networks trained on a GPU.",
         "",
+        *_baseline_lines(results),
         "## Acceptance figures (issue 15)",
         "",
         *_acceptance(results),

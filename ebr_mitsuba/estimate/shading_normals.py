@@ -41,7 +41,11 @@ smoothing scales, per-channel log-albedo, the two shots' gradients apart: 0.0483
 over-fitted). In the whole pipeline (with the glint gate and the diffuse correction below):
 normal 0.0528 → 0.0484, diffuse 0.0528 → 0.0515, mean per-map 0.0520 → 0.0505, the predicted
 normals' spread 0.04 → 0.45 of the truth's; the held-out-light re-render unchanged (0.0841 →
-0.0837 without the one metal sample that dominates it); Bricks020 0.0935 → 0.0585.
+0.0837 without the one metal sample that dominates it); Bricks020 0.0935 → 0.0585. Most of the
+gain is that brick set (4 of the 24 captures, ``explained`` 0.03–0.17); on most others the fit
+explains under 1 % and moves the normal RMSE by under 0.001. On the fixed test split (one
+``ebr bench models`` run, docs/models.md) it did not carry over: normal RMSE 0.0356 → 0.0365,
+mean per-map 0.0326 → 0.0328, spread 0.16 → 0.32 of the truth's.
 
 Glossy samples are left alone. A specular lobe's glints in the flash shot follow the normals far
 more steeply than the diffuse shading does, and the fit then overshoots ``c`` (a glazed tile:

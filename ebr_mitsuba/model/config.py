@@ -120,6 +120,11 @@ class TrainOptions:
     log_every: int = option(10, "steps between loss read-backs (CSV row, bar update)", minimum=1)
     checkpoint_every: int = option(200, "steps between checkpoints (and at each phase end)", minimum=1)
     init: str = option("", "checkpoint whose matching weights start the run")
+    init_nets: list[str] = option(
+        [],
+        'the nets of init that start the run (empty: all); ["lighting"]: the cascade starts from scratch',
+        choices=("lighting", "cascade", "dualloss", "mair"),
+    )
 
     def __post_init__(self):
         check(self)

@@ -292,8 +292,17 @@ class Trainer:
                 self.log(f"{self.out}: no checkpoint yet (stopped before the first one): starting at step 0")
             if self.config.train.init:
                 data = load_checkpoint(self.config.train.init, expect_kind=self.config.kind)
-                self.bundle.load_state(data["model"], self.config.train.init, strict=False)
-                self.log(f"initialised from {self.config.train.init}")
+                state, nets = data["model"], self.config.train.init_nets
+                if nets:
+                    missing = [n for n in nets if n not in state]
+                    if missing:
+                        raise InputError(
+                            f"{self.config.train.init}: has no {', '.join(missing)} weights "
+                            f"(it holds {', '.join(state)}); fix [train].init_nets"
+                        )
+                    state = {n: state[n] for n in nets}
+                self.bundle.load_state(state, self.config.train.init, strict=False)
+                self.log(f"initialised from {self.config.train.init} ({', '.join(state)})")
         ddp.barrier(self.dist)
         if self.dist.main:
             self.out.mkdir(parents=True, exist_ok=True)
