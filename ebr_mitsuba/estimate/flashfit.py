@@ -116,10 +116,36 @@ metal and the maps come from the near shots as before. The far flash intensity i
 maps) and keeps the network's normals; ``ebr bench models`` scores both on the test split
 (``docs/models.md``).
 
+Noise. The rings are read off ``F`` as it is, negative pixels included (near and far shots):
+photo noise is symmetric about the signal, and where the signal is nothing but the tail of a
+sharp metal lobe, clamping each pixel of flash − no-flash at 0 (as the rings did until
+2026-12-04) turned the noise into a positive floor in every ring, a false albedo level that only
+the dielectric hypothesis can explain. A polished copper (acg_Metal034, roughness 0.074, F0
+0.77 / 0.44 / 0.002) under a dark cellar map read as a dielectric of roughness 0.12 with F0 0.04;
+read unclamped it is a metal of roughness 0.09. On the validation captures
+(``configs/data_real_val.toml``, 24) it was the only metal decision that changed, and four other
+roughnesses moved by one grid step (0.01): mean per-map RMSE 0.0505 → 0.0483 (specular 0.0276 →
+0.0198, roughness 0.0746 → 0.0738), held-out re-render 0.838 → 0.780 (without that capture
+0.0835 → 0.0834).
+
+The lobe per pixel. A pixel's lobe depends on its view angle θ alone and is tabulated
+(:class:`_LobeTable`) uniformly in θ from 0: the core of a sharp lobe (roughness 0.074: α =
+0.0055 rad) lies within 1 − cos θ < 2e-5, inside the first interval of the table uniform in
+cos θ used until 2026-12-04, which was off by 55 % of the peak there. For roughness below
+FOOTPRINT_ROUGHNESS (0.3) the lobe is averaged over FOOTPRINT_SAMPLES² (9) points of each
+pixel, as the photo integrates it (a box filter); read at pixel centres a roughness-0.08 lobe's
+sum over the 128² frame is 2.4 % low, averaged over the footprints within 0.1 %. With both the
+copper above reads roughness 0.08 and F0 0.54 / 0.28 / 0.001; on the 24 validation captures
+only its maps changed: mean per-map RMSE 0.0483 → 0.0468 (specular 0.0198 → 0.0144), the
+held-out re-render of that capture 16.8 → 17.5 (a highlight this sharp that is not exactly
+right scores worse the sharper it is; the others unchanged). Its roughness and F0 are still off
+by about one grid step and 30 % (cause not found; its normals are flat).
+
 Input convention: ``flash`` and ``noflash`` are (H, W, 3) linear photo values (saturating at
 ``clip``); ``to_radiance`` scales them to the units where the flash has intensity ``intensity``
 (the reference exposure, ``docs/conventions.md#exposure``). Cost: one pass over the image per
-roughness of the grid (98 by default), about 0.3 s at 256² on one core.
+roughness of the grid (98 by default), about 1 s at 256² on two cores (the footprints of the
+sharp lobes add about 10 %).
 """
 
 from __future__ import annotations
@@ -147,7 +173,9 @@ RELIEF_WEIGHTS = (0.25, 0.5, 0.75)  # the sharper lobe's share of F0 in the two-
 LOBE_SHARE = 0.5  # the "clean" level leaves out the pixels whose fitted lobe exceeds half the level
 CLEAN_MIN = 0.1  # ... unless that leaves fewer than 10 % of the pixels (then: the trimmed mean)
 NETWORK_WEIGHT_SIZE = 256  # above this side the photo pattern's weight falls as 1 / size
-TABLE_SIZE = 1024  # cos θ samples of the tabulated lobe (linear interpolation per pixel)
+TABLE_SIZE = 1024  # θ samples of the tabulated lobe (linear interpolation per pixel)
+FOOTPRINT_ROUGHNESS = 0.3  # below it the lobe is averaged over each pixel's footprint ...
+FOOTPRINT_SAMPLES = 3  # ... at FOOTPRINT_SAMPLES² points per pixel
 
 
 @config(error=InputError)
@@ -310,7 +338,7 @@ class FarPair:
         sat = torch.from_numpy(np.asarray(self.saturated, bool).reshape(-1))
         cos = torch.from_numpy(view_directions(h, w, self.camera)[..., 2].astype(np.float64)).reshape(-1)
         shade = float(self.intensity) * cos / (math.pi * (float(self.camera[2]) / cos) ** 2)
-        g = ((fl - nf).clamp_min(0.0) * to_radiance).mean(-1) / shade
+        g = ((fl - nf) * to_radiance).mean(-1) / shade  # not clamped: module docstring, "Noise"
         return _FarPixels(g, sat, cos)
 
     def shrunk(self, f: int) -> FarPair:
@@ -358,7 +386,7 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
     fl = torch.from_numpy(flash).reshape(-1, 3)
     nf = torch.from_numpy(noflash).reshape(-1, 3)
     saturated = torch.from_numpy(np.asarray(saturated, bool).reshape(-1))
-    f_only = (fl - nf).clamp_min(0.0) * to_radiance
+    f_only = (fl - nf) * to_radiance  # not clamped per pixel (module docstring, "Noise")
     # co-located flash over the flat sample (z = 0): cos θ = v_z and d = camera_z / cos θ
     v = torch.from_numpy(view_directions(h, w, camera)).reshape(-1, 3)
     cos = v[:, 2].contiguous()
@@ -406,7 +434,7 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
     grid = torch.linspace(opts.roughness_min, opts.roughness_max, opts.roughness_steps, dtype=torch.float64)
     ring_v = torch.stack([torch.sqrt(1 - ring_cos**2), torch.zeros_like(ring_cos), ring_cos], -1)
 
-    table = _LobeTable(cos)
+    table = _LobeTable(cos, _footprint_cos(h, w, camera))
 
     def lobe(vv: torch.Tensor, r: float) -> torch.Tensor:  # π f_s over a set of co-located directions
         return _lobe(vv, r, opts.f0)
@@ -443,7 +471,7 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
         far_use = usable & (ring_count >= 4)
         if int(far_use.sum()) < 3:  # too few rings left unsaturated in both shots: the near fit alone
             far_use[:] = False
-        far_table = _LobeTable(far_px.cos)
+        far_table = _LobeTable(far_px.cos, _footprint_cos(h, w, far.camera))
     if far_use.any():  # near − far per ring: the albedo cancels, the lobes' difference remains
         observed_diff = ring_med[far_use] - far_ring[far_use]
     use_far = bool(far_use.any())
@@ -559,21 +587,47 @@ def _lobe(v: torch.Tensor, r: float, f0: float) -> torch.Tensor:
 
 
 class _LobeTable:
-    """The lobe at each pixel: it depends on cos θ alone, so it is tabulated over ``cos``'s range
-    (TABLE_SIZE samples, float64) and interpolated linearly; the interpolation weights are
-    computed once, a call per (roughness, F₀) evaluates the table only. Values in ``cos``'s dtype."""
+    """The lobe at each pixel: it depends on the view angle θ alone, so it is tabulated from θ = 0
+    to the largest θ given (TABLE_SIZE samples uniform in θ, float64) and interpolated linearly; the
+    interpolation weights are computed once, a call per (roughness, F₀) evaluates the table only.
+    Uniform in θ, not in cos θ: the core of a sharp lobe (roughness 0.074: α = 0.0055 rad) lies
+    within 1 − cos θ < 2e-5, inside the first interval of a table uniform in cos θ.
 
-    def __init__(self, cos: torch.Tensor):
-        c = torch.linspace(float(cos.min()), float(cos.max()), TABLE_SIZE, dtype=torch.float64)
-        self.v = torch.stack([torch.sqrt((1 - c**2).clamp_min(0.0)), torch.zeros_like(c), c], -1)
-        pos = (cos.double() - c[0]) / max(float(c[-1] - c[0]), 1e-12) * (TABLE_SIZE - 1)
-        self.lo = pos.floor().long().clamp(0, TABLE_SIZE - 2)
-        self.frac = pos - self.lo
+    ``footprint``: (N, S) cos θ of S points spread over each pixel; given, roughnesses below
+    FOOTPRINT_ROUGHNESS are averaged over them (the photo is the lobe integrated over the pixel, a
+    box filter), the others read at ``cos`` (the pixel centre). Values in ``cos``'s dtype."""
+
+    def __init__(self, cos: torch.Tensor, footprint: torch.Tensor | None = None):
         self.dtype = cos.dtype
+        theta = torch.acos(cos.double().clamp(-1.0, 1.0))
+        sub = None if footprint is None else torch.acos(footprint.double().clamp(-1.0, 1.0))
+        top = max(float(theta.max()), 0.0 if sub is None else float(sub.max()))
+        self.dt = max(top, 1e-9) / (TABLE_SIZE - 1)  # from θ = 0: the peak is a node
+        t = torch.arange(TABLE_SIZE, dtype=torch.float64) * self.dt
+        self.v = torch.stack([torch.sin(t), torch.zeros_like(t), torch.cos(t)], -1)
+        self.centre = self._weights(theta)
+        self.footprint = None if sub is None else self._weights(sub)
+
+    def _weights(self, theta: torch.Tensor):
+        pos = theta / self.dt
+        lo = pos.floor().long().clamp(0, TABLE_SIZE - 2)
+        return lo, (pos - lo).clamp(0.0, 1.0)
 
     def __call__(self, r: float, f0: float) -> torch.Tensor:
         t = _lobe(self.v, r, f0)
-        return (t[self.lo] * (1 - self.frac) + t[self.lo + 1] * self.frac).to(self.dtype)
+        lo, frac = self.footprint if self.footprint is not None and r < FOOTPRINT_ROUGHNESS else self.centre
+        out = t[lo] * (1 - frac) + t[lo + 1] * frac
+        if out.ndim == 2:
+            out = out.mean(-1)
+        return out.to(self.dtype)
+
+
+def _footprint_cos(h: int, w: int, camera, samples: int = FOOTPRINT_SAMPLES) -> torch.Tensor:
+    """(H·W, samples²) cos θ of a samples × samples grid of points over each pixel (the pixel
+    centres of the grid ``samples`` times finer, grouped by pixel)."""
+    s = samples
+    cos = view_directions(h * s, w * s, camera)[..., 2].reshape(h, s, w, s).transpose(0, 2, 1, 3)
+    return torch.from_numpy(np.ascontiguousarray(cos).reshape(h * w, s * s))
 
 
 def _area(a: np.ndarray, f: int) -> np.ndarray:
@@ -667,7 +721,7 @@ def fit_flash(
     cos = torch.from_numpy(view_directions(h, w, camera)[..., 2].astype(np.float32)).reshape(-1)
     shade = intensity * cos / (math.pi * (float(camera[2]) / cos) ** 2)  # G(x), unit albedo, flat
     if metal:
-        unit_pix = _LobeTable(cos)(r_fit, 1.0)  # g units per unit F0
+        unit_pix = _LobeTable(cos, _footprint_cos(h, w, camera))(r_fit, 1.0)  # g units per unit F0
         per_channel = f_only / (shade * unit_pix).clamp_min(1e-12)[:, None]
         f0_rgb = torch.stack([per_channel[ok, c].median() for c in range(3)]).clamp(1e-3, 1.0)
         spec_radiance = (unit_pix * shade)[:, None] * f0_rgb[None, :]
@@ -683,7 +737,7 @@ def fit_flash(
             specular_rgb=f0_rgb.numpy().astype(np.float32),
             far_pair=used_far,
         )
-    s_pix = _LobeTable(cos)(r_fit, opts.f0)  # g units
+    s_pix = _LobeTable(cos, _footprint_cos(h, w, camera))(r_fit, opts.f0)  # g units
     spec_radiance = s_pix[:, None] * shade[:, None]  # flash-only radiance of the lobe (grey F0)
     ratio = (f_only - spec_radiance) / shade[:, None]
     level_rgb = _level(ratio, ok, s_pix, opts.level_statistic)
