@@ -126,7 +126,9 @@ read unclamped it is a metal of roughness 0.09. On the validation captures
 (``configs/data_real_val.toml``, 24) it was the only metal decision that changed, and four other
 roughnesses moved by one grid step (0.01): mean per-map RMSE 0.0505 → 0.0483 (specular 0.0276 →
 0.0198, roughness 0.0746 → 0.0738), held-out re-render 0.838 → 0.780 (without that capture
-0.0835 → 0.0834).
+0.0835 → 0.0834). The maps (the level, the pattern, a metal's F0) are still made from the
+clamped image: unclamped there, the validation diffuse RMSE went from 0.0512 to 0.0515 (bricks
+darker), nothing else changed.
 
 The lobe per pixel. A pixel's lobe depends on its view angle θ alone and is tabulated
 (:class:`_LobeTable`) uniformly in θ from 0: the core of a sharp lobe (roughness 0.074: α =
@@ -717,7 +719,7 @@ def fit_flash(
     fl = torch.from_numpy(flash).reshape(-1, 3)
     nf = torch.from_numpy(noflash).reshape(-1, 3)
     ok = ~torch.from_numpy(saturated.reshape(-1))
-    f_only = (fl - nf).clamp_min(0.0) * to_radiance
+    f_only = (fl - nf).clamp_min(0.0) * to_radiance  # clamped for the maps (module docstring, "Noise")
     cos = torch.from_numpy(view_directions(h, w, camera)[..., 2].astype(np.float32)).reshape(-1)
     shade = intensity * cos / (math.pi * (float(camera[2]) / cos) ** 2)  # G(x), unit albedo, flat
     if metal:
