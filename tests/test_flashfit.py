@@ -93,6 +93,10 @@ def test_a_polished_metal_in_the_dark_stays_a_metal():
     fit = fit_flash(flash, noflash, to_radiance=1 / exposure)
     assert fit.metal  # with the clamp: a dielectric of roughness 0.13
     assert abs(fit.roughness - 0.07) <= 0.02, fit.roughness
+    # F0 by least squares on the lobe: the median of the per-pixel ratios was 0 (most pixels hold
+    # noise about zero) and F0 sat at its 0.001 floor
+    rgb = fit.specular_rgb
+    assert rgb[0] > rgb[1] > rgb[2] and rgb[1] > 0.2, rgb
 
 
 def test_texture_pattern_beats_the_constant():

@@ -126,9 +126,15 @@ read unclamped it is a metal of roughness 0.09. On the validation captures
 (``configs/data_real_val.toml``, 24) it was the only metal decision that changed, and four other
 roughnesses moved by one grid step (0.01): mean per-map RMSE 0.0505 → 0.0483 (specular 0.0276 →
 0.0198, roughness 0.0746 → 0.0738), held-out re-render 0.838 → 0.780 (without that capture
-0.0835 → 0.0834). The maps (the level, the pattern, a metal's F0) are still made from the
-clamped image: unclamped there, the validation diffuse RMSE went from 0.0512 to 0.0515 (bricks
-darker), nothing else changed.
+0.0835 → 0.0834). A metal's F0 per channel is the least-squares scale of the unclamped
+flash-only image on the unit lobe over the unsaturated pixels; the median of the per-pixel
+ratios it replaces was 0 when most pixels hold only noise (the copper under another map, near-far
+validation: F0 at its 0.001 floor, now 0.17 / 0.08 / 0.001). The diffuse level and pattern are
+still made from the clamped image: unclamped there, the validation diffuse RMSE went from 0.0512
+to 0.0515 (bricks darker), nothing else changed. With this paragraph's and the next one's
+changes together: validation mean per-map RMSE 0.0505 → 0.0469 near (24 captures), 0.0506 →
+0.0473 near-far (24; diffuse 0.0609 → 0.0528, specular 0.0283 → 0.0235, held-out re-render
+0.831 → 0.794: the copper was a dielectric with a diffuse map there).
 
 The lobe per pixel. A pixel's lobe depends on its view angle θ alone and is tabulated
 (:class:`_LobeTable`) uniformly in θ from 0: the core of a sharp lobe (roughness 0.074: α =
@@ -719,13 +725,16 @@ def fit_flash(
     fl = torch.from_numpy(flash).reshape(-1, 3)
     nf = torch.from_numpy(noflash).reshape(-1, 3)
     ok = ~torch.from_numpy(saturated.reshape(-1))
-    f_only = (fl - nf).clamp_min(0.0) * to_radiance  # clamped for the maps (module docstring, "Noise")
+    f_only = (fl - nf).clamp_min(0.0) * to_radiance  # clamped for the diffuse maps ("Noise")
     cos = torch.from_numpy(view_directions(h, w, camera)[..., 2].astype(np.float32)).reshape(-1)
     shade = intensity * cos / (math.pi * (float(camera[2]) / cos) ** 2)  # G(x), unit albedo, flat
     if metal:
         unit_pix = _LobeTable(cos, _footprint_cos(h, w, camera))(r_fit, 1.0)  # g units per unit F0
-        per_channel = f_only / (shade * unit_pix).clamp_min(1e-12)[:, None]
-        f0_rgb = torch.stack([per_channel[ok, c].median() for c in range(3)]).clamp(1e-3, 1.0)
+        # F0 per channel: least squares of the unclamped flash-only image on the unit lobe over the
+        # unsaturated pixels (module docstring, "Noise")
+        u = (shade * unit_pix)[ok]
+        signed = ((fl - nf) * to_radiance)[ok]
+        f0_rgb = ((signed * u[:, None]).sum(0) / (u * u).sum().clamp_min(1e-30)).clamp(1e-3, 1.0)
         spec_radiance = (unit_pix * shade)[:, None] * f0_rgb[None, :]
         return FlashFit(
             roughness=r_fit,
