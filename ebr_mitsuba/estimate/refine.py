@@ -20,7 +20,7 @@ by about its learning rate even at the optimum, so the normals get a rate 10× b
 maps and every rate decays linearly to 10% over the run; without that the normals dithered by
 about 7° on the demo capture whatever the prior weight. On the demo capture (``ebr demo``, 100
 steps, after the flash-profile fit) the defaults lower the re-render RMSE from 0.033 to 0.010 but
-raise the mean per-map RMSE from 0.013 to 0.018 (diffuse better, the other maps worse:
+raise the mean per-map RMSE from 0.012 to 0.019 (diffuse better, the other maps worse:
 docs/demo_result.md); on the test split they raise it too (docs/models.md), which is why
 refinement is off by default.
 
