@@ -30,7 +30,8 @@ tip of a sharp highlight is clipped, so its rings carry no median):
 The roughness of lowest cost is kept. F₀ is fixed (``f0``, default 0.04: real dielectrics, the
 measured table of ``$EBR_DATA_DIR/measured``). A second hypothesis, a metal (no diffuse,
 ``g = m · π f_s(θ; 1, r)``, m solved like L), wins when its cost is below ``METAL_MARGIN`` (½) of
-the dielectric's; its F₀ per channel is the median ratio of the flash-only image to the unit lobe.
+the dielectric's; its F₀ per channel is the least-squares scale of the flash-only image on the
+unit lobe ("Noise" below).
 Known failure: a high-contrast two-tone texture without a visible highlight (e.g. a 0.55 / 0.1
 checker of roughness 0.3–0.6 seen in EXR, no clipping) makes the ring statistics jump between the
 tones (less with ``trimmed`` than with ``median``), which can let the metal hypothesis win
