@@ -53,6 +53,9 @@ QUICK_LIMIT = 2
 DEFAULT_REFINE = {"steps": 100}  # the refinement judged on the test split (EBR_REFINE overrides)
 THUMB = 96  # contact-sheet thumbnail size
 SHEET_QUALITY = 85  # JPEG quality of the contact sheet
+MEAN_MAPS = "training-set mean maps"  # the row of baseline (ii)
+PREVIOUS = "previously shipped model"  # the EBR_CANDIDATES name of baseline (iii)
+NO_EXEMPLARS = "model without exemplars"  # ... and of baseline (iv)
 MAP_NAMES = ("normal", "diffuse", "roughness", "specular")
 COLUMNS = (*MAP_NAMES, "mean")
 # EBREnv (Table 1, near field; their test set is MatSynth renders, not this split).
@@ -416,7 +419,7 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
     predictors.append(("oracle constant", oracle_predictor))
     train = os.environ.get("EBR_TRAIN_DATA")
     if train:
-        predictors.append(("training-set mean maps", MeanMaps.from_dataset(train).item_predictor()))
+        predictors.append((MEAN_MAPS, MeanMaps.from_dataset(train).item_predictor()))
 
     refine_opts = _refine_options()
     refine_cfg = RefineConfig(**refine_opts)
@@ -595,7 +598,7 @@ def _acceptance(results: dict) -> list[str]:
     oracle = results["oracle constant"]
     lines = []
     for name, res in results.items():
-        if name in ("oracle constant", "training-set mean maps"):
+        if name in ("oracle constant", MEAN_MAPS):
             continue
         pm, po = res["per_map_rmse"], oracle["per_map_rmse"]
         structure = res["normal_structure"]
@@ -654,10 +657,6 @@ def _model_card(summary: dict | None, run_dir: str | None) -> list[str]:
     return lines + ["", "![training loss per phase](models_loss.png)", ""]
 
 
-PREVIOUS = "previously shipped model"  # the EBR_CANDIDATES name of baseline (iii)
-NO_EXEMPLARS = "model without exemplars"  # ... and of baseline (iv)
-
-
 def _baseline_lines(results: dict) -> list[str]:
     """Where the protocol's four baselines (issue 15) are in the table, or why one is missing."""
 
@@ -673,7 +672,7 @@ def _baseline_lines(results: dict) -> list[str]:
     return [
         "Baselines of the protocol: (i) each test material's own constant mean maps, row *oracle "
         "constant*; (ii) the training-set mean maps, "
-        + row("training-set mean maps", "set `EBR_TRAIN_DATA`")
+        + row(MEAN_MAPS, "set `EBR_TRAIN_DATA`")
         + f"; (iii) the previously shipped model, {previous}; (iv) the same network trained without "
         "exemplars (`configs/train_small_noexemplars.toml`), "
         + row(NO_EXEMPLARS, f"name it `{NO_EXEMPLARS}` in `EBR_CANDIDATES`")

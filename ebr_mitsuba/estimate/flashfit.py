@@ -726,16 +726,16 @@ def fit_flash(
     fl = torch.from_numpy(flash).reshape(-1, 3)
     nf = torch.from_numpy(noflash).reshape(-1, 3)
     ok = ~torch.from_numpy(saturated.reshape(-1))
-    f_only = (fl - nf).clamp_min(0.0) * to_radiance  # clamped for the diffuse maps ("Noise")
+    signed = (fl - nf) * to_radiance  # the flash-only image, unclamped (module docstring, "Noise")
+    f_only = signed.clamp_min(0.0)  # clamped for the diffuse maps
     cos = torch.from_numpy(view_directions(h, w, camera)[..., 2].astype(np.float32)).reshape(-1)
     shade = intensity * cos / (math.pi * (float(camera[2]) / cos) ** 2)  # G(x), unit albedo, flat
+    lobe = _LobeTable(cos, _footprint_cos(h, w, camera))
     if metal:
-        unit_pix = _LobeTable(cos, _footprint_cos(h, w, camera))(r_fit, 1.0)  # g units per unit F0
-        # F0 per channel: least squares of the unclamped flash-only image on the unit lobe over the
-        # unsaturated pixels (module docstring, "Noise")
+        unit_pix = lobe(r_fit, 1.0)  # g units per unit F0
+        # F0 per channel: least squares of the unclamped image on the unit lobe, unsaturated pixels
         u = (shade * unit_pix)[ok]
-        signed = ((fl - nf) * to_radiance)[ok]
-        f0_rgb = ((signed * u[:, None]).sum(0) / (u * u).sum().clamp_min(1e-30)).clamp(1e-3, 1.0)
+        f0_rgb = ((signed[ok] * u[:, None]).sum(0) / (u * u).sum().clamp_min(1e-30)).clamp(1e-3, 1.0)
         spec_radiance = (unit_pix * shade)[:, None] * f0_rgb[None, :]
         return FlashFit(
             roughness=r_fit,
@@ -749,7 +749,8 @@ def fit_flash(
             specular_rgb=f0_rgb.numpy().astype(np.float32),
             far_pair=used_far,
         )
-    s_pix = _LobeTable(cos, _footprint_cos(h, w, camera))(r_fit, opts.f0)  # g units
+    del signed
+    s_pix = lobe(r_fit, opts.f0)  # g units
     spec_radiance = s_pix[:, None] * shade[:, None]  # flash-only radiance of the lobe (grey F0)
     ratio = (f_only - spec_radiance) / shade[:, None]
     level_rgb = _level(ratio, ok, s_pix, opts.level_statistic)
