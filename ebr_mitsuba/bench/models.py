@@ -635,7 +635,9 @@ def _model_card(summary: dict | None, run_dir: str | None) -> list[str]:
         f"`ebr_mitsuba/models/{shipped_model_path().name}` is what `ebr estimate`, `ebr demo` and `ebr eval` "
         "use when no `--checkpoint` is given: the EBREnv lighting net and cascade "
         f"([conventions](conventions.md#pipeline)) on a {bundle.resolution}² grid, {params / 1e6:.2f} M "
-        f"parameters, {size_mb:.1f} MB (float16 weights).",
+        f"parameters, {size_mb:.1f} MB (float16 weights). The cascade's size against the other presets, "
+        "each trained with one recipe on the real training set and scored on the validation set: "
+        "[bench/sizes.md](bench/sizes.md) (`ebr bench sizes`).",
         "",
     ]
     if not summary:

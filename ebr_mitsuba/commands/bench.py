@@ -1,6 +1,7 @@
 """Measure speed against error and write the tables and plots (docs/bench/ in a checkout).
 
-  ebr bench [renderer|generate|extract-sg|estimate|models|fivelight|mair|all] [--out DIR] [--quick] [--json]
+  ebr bench [renderer|generate|extract-sg|estimate|sizes|models|fivelight|mair|all]
+            [--out DIR] [--quick] [--json]
 
 Each benchmark writes ``OUT/<name>.md`` (a Markdown table with the reference it was measured
 against, and the PNG plots it links) and returns its path:
@@ -13,6 +14,10 @@ against, and the PNG plots it links) and returns its path:
 * ``estimate``: ``ebr estimate`` at 256²–2048² with and without 200 refinement steps on a 1024²
   Mitsuba capture: time per stage, peak memory, the maps' error against resolution, a 4096² photo,
   the networks' FLOPs against the CPU's peak (writes ``estimate.md`` and three plots);
+* ``sizes``: the network-size curve: the cascade trained at each size preset with one recipe
+  (``configs/train_size_curve.toml``), its validation error against parameters and CPU seconds,
+  and the size it picks (writes ``sizes.md``; needs ``EBR_TRAIN_DATA`` and ``EBR_VAL_DATA``;
+  optionally ``EBR_SIZE_RUNS``);
 * ``models``: the shipped model (its training summary) and every model and baseline (the oracle
   constant, the training-set mean maps, candidate checkpoints) on the fixed test split of the real
   assets, EBREnv Table 1 protocol, per material class, with a contact sheet (writes ``models.md``;
@@ -58,7 +63,7 @@ HELP = "measure speed against error; write the benchmark pages (docs/bench/*.md 
 
 # Every benchmark name the toolkit plans; `available()` is the subset this version has (a module in
 # ebr_mitsuba.bench). Only those are listed in --help.
-BENCHMARKS = ("renderer", "generate", "extract-sg", "estimate", "models", "fivelight", "mair")
+BENCHMARKS = ("renderer", "generate", "extract-sg", "estimate", "sizes", "models", "fivelight", "mair")
 OUTSIDE_CHECKOUT = Path("ebr-bench")
 PROJECT = "ebr-mitsuba"
 

@@ -25,7 +25,9 @@ A config has a top-level ``kind`` and five tables::
 
 .. options:: DataConfig
 
-**[model]** (ebrenv) — ``size`` (NAFNet preset ``"paper"``/``"small"`` or a table, every net),
+**[model]** (ebrenv) — ``size`` (NAFNet preset ``"tiny"``/``"small"``/``"medium"``/``"paper"`` or a
+table, every net), ``cascade_size`` (the cascade's nets alone, the lighting net keeping ``size``: the
+size curve of ``ebr bench sizes`` varies it over one lighting net),
 ``capture`` (``near``), ``use_exemplars``, ``use_cascade``, ``use_refinement`` (the §5.3.2
 ablations), ``log_eps``. The number of lighting-net exemplars and their roughness values come
 from the data set (``[exemplars].env_roughness``). (dualloss) — the fields of
@@ -283,6 +285,8 @@ class TrainConfig:
         table = {
             k: m[k] for k in ("size", "use_exemplars", "use_cascade", "use_refinement", "log_eps") if k in m
         }
+        if "cascade_size" in m:  # the cascade's own size; the lighting net keeps ``size``
+            table["size"] = m["cascade_size"]
         photos = 4 if m.get("capture", "near") == "near-far" else 2
         return CascadeConfig.from_dict({**table, "num_photos": photos}, self.source, key="model")
 
@@ -302,7 +306,15 @@ EXTRACT_PRESET = "training"  # the EXTRACT_PRESETS entry [extract] overrides
 EBRENV_TABLES = ("stages", "selection", "extract")  # tables that apply to kind = "ebrenv" alone
 # the tables a config of each kind does not have (parse_config refuses them, to_dict leaves them out)
 DROPPED_TABLES = {"ebrenv": (), "dualloss": EBRENV_TABLES, "mair": ("selection", "extract")}
-EBRENV_MODEL_KEYS = ("size", "capture", "use_exemplars", "use_cascade", "use_refinement", "log_eps")
+EBRENV_MODEL_KEYS = (
+    "size",
+    "cascade_size",
+    "capture",
+    "use_exemplars",
+    "use_cascade",
+    "use_refinement",
+    "log_eps",
+)
 
 
 def _plain(value):

@@ -26,8 +26,10 @@ Sizes (:class:`NAFNetSize`):
 ================  =====  ==============  ======  ==============  ===========
 preset            width  enc_blk_nums    middle  dec_blk_nums    parameters*
 ================  =====  ==============  ======  ==============  ===========
-``PAPER_SIZE``    36     (2, 2, 4, 8)    12      (2, 2, 2, 2)    36 861 090
+``TINY_SIZE``     4      (1, 1, 1, 1)    1       (1, 1, 1, 1)    76 106
 ``SMALL_SIZE``    8      (1, 1, 1, 1)    1       (1, 1, 1, 1)    291 150
+``MEDIUM_SIZE``   16     (1, 1, 2, 2)    2       (1, 1, 1, 1)    1 754 966
+``PAPER_SIZE``    36     (2, 2, 4, 8)    12      (2, 2, 2, 2)    36 861 090
 ================  =====  ==============  ======  ==============  ===========
 
 \\* for 6 input and 6 output channels; see :func:`parameter_count`.
@@ -79,7 +81,10 @@ class NAFNetSize:
 
 PAPER_SIZE = NAFNetSize(width=36, enc_blk_nums=(2, 2, 4, 8), middle_blk_num=12, dec_blk_nums=(2, 2, 2, 2))
 SMALL_SIZE = NAFNetSize(width=8, enc_blk_nums=(1, 1, 1, 1), middle_blk_num=1, dec_blk_nums=(1, 1, 1, 1))
-SIZE_PRESETS = {"paper": PAPER_SIZE, "small": SMALL_SIZE}
+TINY_SIZE = NAFNetSize(width=4, enc_blk_nums=(1, 1, 1, 1), middle_blk_num=1, dec_blk_nums=(1, 1, 1, 1))
+MEDIUM_SIZE = NAFNetSize(width=16, enc_blk_nums=(1, 1, 2, 2), middle_blk_num=2, dec_blk_nums=(1, 1, 1, 1))
+# the points of the size curve (``ebr bench sizes``, docs/bench/sizes.md), smallest first
+SIZE_PRESETS = {"tiny": TINY_SIZE, "small": SMALL_SIZE, "medium": MEDIUM_SIZE, "paper": PAPER_SIZE}
 
 
 class LayerNorm2d(nn.Module):
