@@ -22,7 +22,7 @@ def test_baseline_lines_name_each_row_or_why_it_is_missing():
     some = {"shipped model": {}, "oracle constant": {}}
     text = " ".join(_baseline_lines(some))
     assert "(ii) the training-set mean maps, not in this run (set `EBR_TRAIN_DATA`)" in text
-    assert "(iii) the previously shipped model, row *shipped model*" in text
+    assert f"(iii) the previously shipped model, not in this run (name it `{PREVIOUS}`" in text
     assert f"not in this run (name it `{NO_EXEMPLARS}`" in text
     full = {**some, "training-set mean maps": {}, PREVIOUS: {}, NO_EXEMPLARS: {}}
     text = " ".join(_baseline_lines(full))

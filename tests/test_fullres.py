@@ -3,7 +3,7 @@ working image (one pass or tiles) with each pixel's true geometry, the working-s
 progress on stderr, coarse-to-fine refinement with a time budget, and the fast paths beside their
 references (region renders, the irradiance table, the lobe loop, FastNAFNet, bilinear upsampling).
 
-The CLI tests run the shipped model's cascade (a small NAFNet, quick at 96²) behind a fake
+The CLI tests run the shipped model's cascade (quick at 1.5× its grid) behind a fake
 lighting stage (no SG extraction), so that they take seconds; one test runs the whole shipped
 model on a capture above its grid and counts the lighting net's calls.
 """
@@ -139,12 +139,14 @@ def fake_lighting(monkeypatch, shipped):
 def test_full_resolution_maps_one_lighting_pass_and_tiles(
     tmp_path, capsys, fake_lighting, monkeypatch, shipped
 ):
-    """A 96² capture (grid 64): maps at 96², the lighting estimated once, at the grid, also when
+    """A capture 1.5× the model grid G: maps at that size, the lighting estimated once, at the grid, also when
     the cascade runs in tiles; stdout holds the JSON alone, stderr the stage lines and bars."""
     from ebr_mitsuba.estimate import fullres
     from ebr_mitsuba.imageio import read_exr
 
-    paths = _write_capture(tmp_path / "cap", 96)
+    g = shipped.grid
+    n = g + g // 2
+    paths = _write_capture(tmp_path / "cap", n)
     out = tmp_path / "est"
     code, stdout, err = _estimate(
         ["--flash", paths["flash"], "--noflash", paths["noflash"], "--out", out, "--json", "--no-flash-fit"],
@@ -152,13 +154,13 @@ def test_full_resolution_maps_one_lighting_pass_and_tiles(
     )
     assert code == 0, err
     summary = json.loads(stdout)  # nothing but the summary on stdout
-    assert summary["resolution"] == 96 and summary["model_grid"] == 64 and summary["tiles"] == 1
-    assert read_exr(out / "maps" / "diffuse.exr").shape == (96, 96, 3)
-    assert len(fake_lighting) == 1 and fake_lighting[0]["shape"] == (64, 64, 3)
+    assert summary["resolution"] == n and summary["model_grid"] == g and summary["tiles"] == 1
+    assert read_exr(out / "maps" / "diffuse.exr").shape == (n, n, 3)
+    assert len(fake_lighting) == 1 and fake_lighting[0]["shape"] == (g, g, 3)
     for line in (
-        "estimating the lighting at the model grid 64x64",
-        "estimating the maps at 96x96",
-        "re-rendering the shots at 96x96",
+        f"estimating the lighting at the model grid {g}x{g}",
+        f"estimating the maps at {n}x{n}",
+        f"re-rendering the shots at {n}x{n}",
         f"writing {out}",
     ):
         assert line in err, err
@@ -168,18 +170,18 @@ def test_full_resolution_maps_one_lighting_pass_and_tiles(
     one_pass = read_exr(out / "maps" / "diffuse.exr")
 
     fake_lighting.clear()
-    monkeypatch.setattr(fullres, "PASS_MEMORY", fullres.pass_bytes(shipped.cascade, 64 * 64))
+    monkeypatch.setattr(fullres, "PASS_MEMORY", fullres.pass_bytes(shipped.cascade, g * g))
     code, stdout, err = _estimate(
         ["--flash", paths["flash"], "--noflash", paths["noflash"], "--out", out, "--json", "--no-flash-fit"],
         capsys,
     )
     assert code == 0, err
     summary = json.loads(stdout)
-    assert summary["tiles"] == 4 and summary["tile"] == 64 and len(fake_lighting) == 1
+    assert summary["tiles"] == 4 and 0 < summary["tile"] <= g and len(fake_lighting) == 1
     tiled = read_exr(out / "maps" / "diffuse.exr")
     # Tiles see the same inputs as the one pass (true geometry, one lighting, one flash scale): they
     # differ only through each network's receptive field and channel attention at the tile edges
-    # (2.5 % here, with 64² tiles of a 96² image; docs/bench/estimate.md measures 1024²).
+    # (2.5 % with the earlier small model's 64² tiles of a 96² image; docs/bench/estimate.md measures 1024²).
     assert float(np.mean(np.abs(tiled - one_pass))) < 0.04 * float(np.mean(one_pass))
 
 
@@ -196,20 +198,23 @@ def test_too_small_images_are_refused(tmp_path, capsys, fake_lighting, shape):
     assert not out.exists() and not fake_lighting
 
 
-def test_large_image_is_downscaled_with_a_warning(tmp_path, capsys, fake_lighting):
-    """A 160² flash-only photo with --max-size 80: estimated at 80², the warning names both sizes."""
-    photo = _photos(160)["flash"]
+def test_large_image_is_downscaled_with_a_warning(tmp_path, capsys, fake_lighting, shipped):
+    """A flash-only photo of 2.5 model grids with --max-size 1.25 grids: estimated at the limit, the
+    warning names both sizes."""
+    g = shipped.grid
+    big, limit = 2 * g + g // 2, g + g // 4
+    photo = _photos(big)["flash"]
     write_png(tmp_path / "photo.png", photo / float(photo.max()) * 0.9)
     out = tmp_path / "est"
     code, stdout, err = _estimate(
-        ["--flash", tmp_path / "photo.png", "--out", out, "--max-size", "80", "--json"], capsys
+        ["--flash", tmp_path / "photo.png", "--out", out, "--max-size", str(limit), "--json"], capsys
     )
     assert code == 0, err
     summary = json.loads(stdout)
-    assert summary["resolution"] == 80 and summary["inputs"]["size"] == [160, 160]
-    needle = "the photos are 160x160 pixels: estimating at 80x80"
+    assert summary["resolution"] == limit and summary["inputs"]["size"] == [big, big]
+    needle = f"the photos are {big}x{big} pixels: estimating at {limit}x{limit}"
     assert needle in err and any(needle in w for w in summary["warnings"])
-    assert "--max-size 80" in err
+    assert f"--max-size {limit}" in err
     assert len(fake_lighting) == 1 and not fake_lighting[0]["noflash"]
 
 
@@ -513,7 +518,7 @@ def test_refinement_time_budget_stops_with_a_note(tmp_path, capsys, fake_lightin
 
 
 def test_real_model_lighting_runs_once_above_the_grid(tmp_path, monkeypatch):
-    """The shipped model on a 96² capture in forced tiles: one lighting-net forward, and the
+    """The shipped model on a capture 1.5× its grid in forced tiles: one lighting-net forward, and the
     cascade's three networks once at the grid and once per tile."""
     from ebr_mitsuba.estimate import fullres
     from ebr_mitsuba.estimate.pipeline import EstimateConfig, run_estimate
@@ -524,14 +529,15 @@ def test_real_model_lighting_runs_once_above_the_grid(tmp_path, monkeypatch):
     predictor.bundle.lighting.register_forward_hook(
         lambda *a: calls.__setitem__("lighting", calls["lighting"] + 1)
     )
-    monkeypatch.setattr(fullres, "PASS_MEMORY", fullres.pass_bytes(predictor.cascade, 64 * 64))
-    paths = _write_capture(tmp_path / "cap", 96)
+    g = predictor.grid
+    monkeypatch.setattr(fullres, "PASS_MEMORY", fullres.pass_bytes(predictor.cascade, g * g))
+    paths = _write_capture(tmp_path / "cap", g + g // 2)
     summary = run_estimate(
         EstimateConfig(flash=str(paths["flash"]), noflash=str(paths["noflash"]), out=str(tmp_path / "est")),
         predictor=predictor,
     )
     assert calls["lighting"] == 1
-    assert summary["resolution"] == 96 and summary["tiles"] == 4
+    assert summary["resolution"] == g + g // 2 and summary["tiles"] == 4
     assert summary["lobes"] > 0 and np.isfinite(summary["rerender_error"]["network"]["mean"]["rmse"])
 
 

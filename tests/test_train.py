@@ -364,7 +364,7 @@ def test_shipped_model_loads():
     assert shipped_model_path().is_file(), f"{shipped_model_path()}: the tracked shipped model is missing"
     bundle = load_model(None)
     assert bundle.kind == "ebrenv" and bundle.resolution >= 32
-    assert shipped_model_path().stat().st_size < 8 * 2**20
+    assert shipped_model_path().stat().st_size <= 20e6  # issue 15: shipped weights ≤ 20 MB
 
 
 def test_metrics_identity_and_mean_baseline(tiny):

@@ -68,20 +68,26 @@ PAPER_ROW = {
 }
 REGENERATE = """\
 export EBR_DATA_DIR=../shared/data EBR_SPLIT_DATA=/tmp/ebr-data/real_test \\
-       EBR_TRAIN_DATA=/tmp/ebr-data/real_train
+       EBR_TRAIN_DATA=/tmp/ebr-data/real_train EBR_VAL_DATA=/tmp/ebr-data/real_val
 ebr generate configs/data_real_test.toml --out $EBR_SPLIT_DATA --workers 2    # metered, Mitsuba 256 spp
-ebr generate configs/data_real_train.toml --out $EBR_TRAIN_DATA --workers 2   # for the mean-maps baseline
+ebr generate configs/data_real_train.toml --out $EBR_TRAIN_DATA --workers 2   # training; mean-maps baseline
+ebr generate configs/data_real_val.toml --out $EBR_VAL_DATA --workers 2       # model selection
+git show 93c04ca:ebr_mitsuba/models/ebrenv_small.pt > /tmp/ebr-runs/previous_small.pt  # baseline (iii)
+ebr bench sizes   # the size curve (docs/bench/sizes.md); its medium run starts the shipped model's:
+EBR_INIT=/tmp/ebr-size-curve/medium/model.pt ebr train configs/train_real.toml --out /tmp/ebr-runs/real \\
+  --export ebr_mitsuba/models/ebrenv_real.pt   # the shipped model
 export EBR_NEAR_FAR_DATA=/tmp/ebr-data/real_nf_test  # the near-far section (optional)
 ebr generate configs/data_real_near_far_test.toml --out $EBR_NEAR_FAR_DATA --workers 2
 ebr generate configs/data_real_near_far_train.toml --out /tmp/ebr-data/real_nf_train --workers 2
-EBR_TRAIN_DATA=/tmp/ebr-data/real_nf_train EBR_INIT=$PWD/ebr_mitsuba/models/ebrenv_small.pt \\
+EBR_TRAIN_DATA=/tmp/ebr-data/real_nf_train EBR_INIT=/tmp/ebr-runs/previous_small.pt \\
   ebr train configs/train_real_near_far.toml --out /tmp/ebr-runs/real_nf \\
   --export ebr_mitsuba/models/ebrenv_near_far.pt   # the shipped near-far model
 ebr generate configs/data_small_train.toml --out /tmp/ebr-data/small_train --workers 2
-EBR_TRAIN_DATA=/tmp/ebr-data/small_train EBR_INIT=$PWD/ebr_mitsuba/models/ebrenv_small.pt \\
+EBR_TRAIN_DATA=/tmp/ebr-data/small_train EBR_INIT=/tmp/ebr-runs/previous_small.pt \\
   ebr train configs/train_small_noexemplars.toml --out /tmp/ebr-runs/noexemplars  # baseline (iv)
-EBR_CANDIDATES="model without exemplars=/tmp/ebr-runs/noexemplars/model.pt" EBR_REFINE='{"steps": 100}' \\
-  ebr bench models  # this page"""
+EBR_CANDIDATES="previously shipped model=/tmp/ebr-runs/previous_small.pt;\\
+model without exemplars=/tmp/ebr-runs/noexemplars/model.pt" EBR_REFINE='{"steps": 100}' \\
+  EBR_SHIPPED_RUN=/tmp/ebr-runs/real ebr bench models  # this page"""
 
 
 def unavailable() -> str | None:
@@ -668,17 +674,16 @@ def _baseline_lines(results: dict) -> list[str]:
     previous = (
         f"row *{PREVIOUS}*"
         if PREVIOUS in results
-        else "row *shipped model*: no checkpoint named so in `EBR_CANDIDATES`, the shipped "
-        "`ebrenv_small.pt` has not been replaced by a newer model, so it is the previous one"
+        else f"not in this run (name it `{PREVIOUS}` in `EBR_CANDIDATES`)"
     )
     return [
         "Baselines of the protocol: (i) each test material's own constant mean maps, row *oracle "
         "constant*; (ii) the training-set mean maps, "
         + row(MEAN_MAPS, "set `EBR_TRAIN_DATA`")
-        + f"; (iii) the previously shipped model, {previous}; (iv) the same network trained without "
-        "exemplars (`configs/train_small_noexemplars.toml`), "
-        + row(NO_EXEMPLARS, f"name it `{NO_EXEMPLARS}` in `EBR_CANDIDATES`")
-        + ".",
+        + f"; (iii) the previously shipped model, {previous}; (iv) the model without exemplars "
+        "(`configs/train_small_noexemplars.toml`: the previously shipped recipe without exemplar inputs, "
+        "its lighting net the previous model's; a no-exemplar twin of the shipped model's medium cascade "
+        "is not trained yet), " + row(NO_EXEMPLARS, f"name it `{NO_EXEMPLARS}` in `EBR_CANDIDATES`") + ".",
         "",
     ]
 

@@ -20,7 +20,7 @@ defaults and help generated from its metadata):
   --resume       continue the run in DIR from last.pt (same config); a finished run only
                  rewrites model.pt (and --export); without a checkpoint yet, start over
   --export FILE  also write the deployable copy of model.pt (float16 weights, no optimizer
-                 state): how ebr_mitsuba/models/ebrenv_small.pt is made
+                 state): how ebr_mitsuba/models/ebrenv_real.pt is made
   --json         print summary.json on stdout
 
 Data-parallel: `torchrun --nproc_per_node N -m ebr_mitsuba.cli train CONFIG.toml --out DIR`

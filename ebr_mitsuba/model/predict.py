@@ -47,7 +47,7 @@ from .checkpoint import load_checkpoint
 from .device import pick_device
 from .predictor import Lighting, PassInputs, PixelLighting, Prediction, ViewsPrediction
 
-SHIPPED_MODEL = "ebrenv_small.pt"
+SHIPPED_MODEL = "ebrenv_real.pt"
 SHIPPED_NEAR_FAR_MODEL = "ebrenv_near_far.pt"  # configs/train_real_near_far.toml: four-shot captures
 FALLBACK_ROUGHNESS = 0.5
 

@@ -1,9 +1,12 @@
 """Trained models shipped with ebr-mitsuba (package data; see docs/models.md).
 
-``ebrenv_small.pt``: the EBREnv lighting net + cascade of ``configs/train_small.toml`` (NAFNet
-``small`` size, 64² grid, float16 weights), loaded by
-:func:`ebr_mitsuba.model.predict.load_model` when no checkpoint is given.
-``ebrenv_near_far.pt``: the same networks reading the four shots of a near-far capture
+``ebrenv_real.pt``: the EBREnv lighting net (NAFNet ``small``) + cascade (NAFNet ``medium``, the
+size the curve of ``ebr bench sizes`` picks) of ``configs/train_real.toml``, trained on the real
+texture sets and HDR maps (128² grid, float16 weights), loaded by
+:func:`ebr_mitsuba.model.predict.load_model` when no checkpoint is given. It replaced
+``ebrenv_small.pt`` (``configs/train_small.toml``, procedural data, 64²) on 2026-12-04; that file is
+in the git history (``git show 93c04ca:ebr_mitsuba/models/ebrenv_small.pt``).
+``ebrenv_near_far.pt``: the previous model's networks reading the four shots of a near-far capture
 (``configs/train_real_near_far.toml``, warm-started from ``ebrenv_small.pt``), used by ``ebr
 estimate`` when far shots are given and no checkpoint is (docs/models.md, "Near-far captures").
 ``dualloss_small.pt``: the five-light dual-loss U-Net of ``configs/dualloss_real.toml``, used by
