@@ -125,3 +125,28 @@ def test_unavailable_names_the_variables(monkeypatch):
     assert sizes.unavailable() is None
     with pytest.raises(InputError, match=r"\$EBR_TRAIN_DATA = x: not a data set"):
         sizes.run("/nonexistent-out", quick=True, log=lambda m: None)
+
+
+def test_page_rows_the_points_the_choice_and_the_untrained_size(monkeypatch, tmp_path):
+    monkeypatch.setenv("EBR_TRAIN_DATA", str(tmp_path))
+    monkeypatch.setenv("EBR_INIT", str(tmp_path / "init.pt"))
+    cfg = sizes.point_config(load_config(sizes.CONFIG), "small", quick=False)
+
+    def scored(mean: float) -> dict:
+        maps = {k: mean for k in sizes.MAP_NAMES}
+        return {"per_map_rmse": maps, "rerender_rmse": 2 * mean}
+
+    timing = {"parameters": 1234567, "forward_seconds": 0.05, "train_step_seconds": 0.2}
+    points = {
+        "tiny": {**timing, "run_seconds": 60.0, "network": scored(0.1), "estimate": scored(0.05)},
+        "small": {**timing, "run_seconds": 120.0, "network": scored(0.08), "estimate": scored(0.04)},
+        "paper": {**timing, "train_step_seconds": 4.0},
+    }
+    shipped = {"network": scored(0.09), "estimate": scored(0.045)}
+    chosen = sizes.choose(points)
+    page = sizes._page(points, shipped, chosen, cfg, False, 10.0, "VAL", 24, "quiet.")
+    assert chosen == "small" and "| small (chosen) | 1 234 567 | 50 ms | 200 ms | 2.0 min |" in page
+    steps = cfg.stages.diffuse + cfg.stages.specular
+    assert f"not trained (≈ {4.0 * steps / 3600:.1f} h of steps)" in page
+    assert "**Chosen: `small`**" in page and "(0.0800)" in page
+    assert "reference) | | | | | 0.0900" in page and "Quick run" not in page

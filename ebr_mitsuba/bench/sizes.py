@@ -61,7 +61,6 @@ QUICK_VAL = 2
 REPEATS = 5  # timed repetitions (median) after one warm-up
 TIMING_SIZE = 256  # side of the forward-pass timing input
 MARGIN = 0.02  # a larger size is chosen only when its mean RMSE is this much (relative) lower
-SHIPPED = "shipped model (reference)"
 MAP_NAMES = ("normal", "diffuse", "roughness", "specular", "mean")
 
 
@@ -292,6 +291,9 @@ def _fmt_time(seconds: float) -> str:
 
 def _page(points, shipped, chosen, base, quick, seconds, val, n_val, load) -> str:
     stages = base.stages
+    from ..model.predict import shipped_model_path
+
+    shipped_name = shipped_model_path().name
     lines = [
         "# Network size against error and CPU time: `ebr bench sizes`",
         "",
@@ -345,7 +347,7 @@ def _page(points, shipped, chosen, base, quick, seconds, val, n_val, load) -> st
     if shipped is not None:
         nm, es = shipped["network"], shipped["estimate"]
         lines.append(
-            f"| {SHIPPED} | | | | | "
+            f"| shipped model `{shipped_name}` (reference) | | | | | "
             + " | ".join(f"{nm['per_map_rmse'][k]:.4f}" for k in MAP_NAMES)
             + f" | {nm['rerender_rmse']:.4f} | {es['per_map_rmse']['mean']:.4f} | {es['rerender_rmse']:.4f} |"
         )
@@ -353,7 +355,8 @@ def _page(points, shipped, chosen, base, quick, seconds, val, n_val, load) -> st
         "",
         "![validation error against parameters and CPU seconds](sizes.png)",
         "",
-        "Dotted: the shipped model's network and `ebr estimate` means on the same captures.",
+        f"Dotted: the shipped model's (`{shipped_name}`) network and `ebr estimate` means on the same "
+        "captures.",
         "",
     ]
     if chosen:
