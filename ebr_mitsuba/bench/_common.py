@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import platform
+import statistics
 import time
 from pathlib import Path
 
@@ -27,6 +28,18 @@ def machine() -> str:
         f"{platform.processor() or platform.machine()}, {os.cpu_count()} logical cores, "
         f"{d['variant']}, Mitsuba {d['mitsuba']}, Dr.Jit {d['drjit']}, LLVM {d.get('llvm', '-')}"
     )
+
+
+def median_seconds(fn, repeats: int) -> float:
+    """Wall seconds of ``fn()``: the median of ``max(1, repeats)`` calls after one warm-up call
+    (kernel compilation, allocator and cache warm-up)."""
+    fn()
+    times = []
+    for _ in range(max(1, repeats)):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
 
 
 def _busy_seconds() -> float | None:

@@ -47,7 +47,7 @@ import numpy as np
 
 from ..exemplar import EXEMPLAR_DIFFUSE, EXEMPLAR_SPECULAR
 from ..metrics import rel_rmse
-from ._common import machine
+from ._common import machine, median_seconds
 
 ROUGHNESS_BUCKETS = (0.05, 0.2, 0.5, 0.9)
 VIEW_BUCKETS = (0.0, 30.0, 60.0, 80.0)
@@ -237,16 +237,6 @@ def measure_errors(settings: Settings, seed: int = 0, progress=None) -> list[dic
     return rows
 
 
-def _median_time(fn, repeats: int) -> float:
-    fn()  # warm-up: kernel compilation
-    times = []
-    for _ in range(max(1, repeats)):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return float(np.median(times))
-
-
 def measure_times(settings: Settings) -> dict[str, float]:
     """Seconds per megapixel of each setting (module docstring)."""
     from ..capture import render_shot
@@ -262,10 +252,10 @@ def measure_times(settings: Settings) -> dict[str, float]:
     fast_mat = make_material(family, mseed, size=n)
     out = {}
     mpx = n * n / 1e6
-    out["sg"] = _median_time(lambda: render_numpy(fast_mat, env, shot, mode="sg"), settings.repeats) / mpx
+    out["sg"] = median_seconds(lambda: render_numpy(fast_mat, env, shot, mode="sg"), settings.repeats) / mpx
     for spp in settings.quadrature_spp:
         out[f"quadrature {spp}"] = (
-            _median_time(
+            median_seconds(
                 lambda s=spp: render_numpy(fast_mat, env, shot, mode="quadrature", spp=s), settings.repeats
             )
             / mpx
@@ -273,7 +263,7 @@ def measure_times(settings: Settings) -> dict[str, float]:
     m = settings.mitsuba_time_res
     mitsuba_mat = make_material(family, mseed, size=m)
     for spp in settings.mitsuba_spp:
-        out[f"mitsuba {spp}"] = _median_time(
+        out[f"mitsuba {spp}"] = median_seconds(
             lambda s=spp: render_shot(mitsuba_mat, sg_emitter_dict(env), shot, s, seed=1), settings.repeats
         ) / (m * m / 1e6)
     return out

@@ -42,13 +42,13 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import statistics
+import shutil
 import tempfile
 import time
 from pathlib import Path
 
 from ..errors import InputError
-from ._common import OtherLoad, load_sentence, machine
+from ._common import OtherLoad, load_sentence, machine, median_seconds
 
 DEFAULT_OUT = "docs/bench"
 CONFIG = Path(__file__).resolve().parents[2] / "configs" / "train_size_curve.toml"
@@ -107,7 +107,7 @@ def _link_stage1(source: Path | None, run_dir: Path) -> None:
             try:
                 os.link(f, target)
             except OSError:  # another file system: copy
-                target.write_bytes(f.read_bytes())
+                shutil.copyfile(f, target)
 
 
 def train_point(cfg, run_dir: Path, stage1_from: Path | None, log=print) -> dict:
@@ -117,7 +117,7 @@ def train_point(cfg, run_dir: Path, stage1_from: Path | None, log=print) -> dict
     from ..train.trainer import Trainer
 
     model, summary_file, config_file = run_dir / "model.pt", run_dir / "summary.json", run_dir / "config.json"
-    wanted = json.loads(json.dumps(cfg.to_dict(), default=str))
+    wanted = json.loads(json.dumps(cfg.to_dict()))  # as the trainer compares its config.json
     if config_file.is_file():
         have = json.loads(config_file.read_text())
         if have != wanted:
@@ -137,16 +137,6 @@ def train_point(cfg, run_dir: Path, stage1_from: Path | None, log=print) -> dict
     finally:
         trainer.close()
         shutdown(trainer.dist)
-
-
-def _median_seconds(fn, repeats: int = REPEATS) -> float:
-    fn()  # warm-up
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 def _in_channels(net) -> int:
@@ -192,8 +182,8 @@ def time_size(size: str, cascade_config, train_res: int, repeats: int = REPEATS,
 
     return {
         "parameters": int(sum(parameter_count(n) for n in nets)),
-        "forward_seconds": _median_seconds(forward, repeats),
-        "train_step_seconds": _median_seconds(step, max(1, repeats // 2)),
+        "forward_seconds": median_seconds(forward, repeats),
+        "train_step_seconds": median_seconds(step, max(1, repeats // 2)),
     }
 
 
@@ -221,17 +211,19 @@ def evaluate_point(checkpoint: Path | None, val: str, limit: int) -> dict:
     """The network's maps and ``ebr estimate``'s maps with that model on the validation set."""
     from ..commands._common import progress
     from ..estimate.refine import RefineConfig
-    from ..evaluation.evaluate import estimate_predictor, evaluate, model_predictor
+    from ..evaluation.evaluate import estimate_predictor, evaluate_many, model_predictor
     from ..model.predict import load_predictor
 
     pred = load_predictor(checkpoint)
-    network = evaluate(model_predictor(pred), val, limit=limit, seed=0, progress=progress)
-    run = estimate_predictor(pred, val, RefineConfig())
-    estimate = evaluate(
-        lambda item, names: run(item, names)["estimate"], val, limit=limit, seed=0, progress=progress
+    network, run = model_predictor(pred), estimate_predictor(pred, val, RefineConfig())
+    both = evaluate_many(
+        lambda item, names: {"network": network(item, names), "estimate": run(item, names)["estimate"]},
+        val,
+        limit=limit,
+        seed=0,
+        progress=progress,
     )
-    strip = lambda m: {k: v for k, v in m.items() if k != "per_sample"}  # noqa: E731
-    return {"network": strip(network), "estimate": strip(estimate)}
+    return {name: {k: v for k, v in m.items() if k != "per_sample"} for name, m in both.items()}
 
 
 def choose(points: dict[str, dict]) -> str:
@@ -421,6 +413,7 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
     """Train, score and time every size; write ``out_dir/sizes.md`` (module docstring)."""
     from ..data.dataset import GeneratedDataset
     from ..fsutil import atomic_write_text
+    from ..model.bundle import DataFacts
     from ..model.config import load_config
     from ..model.predict import shipped_model_path
 
@@ -453,7 +446,7 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
             **evaluate_point(run_dir / "model.pt", val, limit),
         }
     cascade_config = base.cascade_config()
-    res = int(json.loads((Path(train) / "dataset.json").read_text())["config"]["dataset"]["resolution"])
+    res = DataFacts.from_dataset(train).resolution
     for size in [*points, *([] if quick else TIMED_ONLY)]:
         log(f"[bench sizes] {size}: timing")
         points.setdefault(size, {}).update(time_size(size, cascade_config, res, 1 if quick else REPEATS))
