@@ -477,6 +477,26 @@ def test_estimate_near_with_refinement_json(tmp_path, capsys, fake_net):
     assert not (out / "maps_network").exists()
 
 
+def test_estimate_refines_against_the_flash_only_image(tmp_path, capsys, fake_net):
+    """--refine-target flash-only fits flash − no-flash under the flash alone; the written
+    re-renders and errors are still of the input shots (both), after the refinement."""
+    paths = _write_capture(tmp_path)
+    out = tmp_path / "est"
+    args = ["--flash", paths["flash"], "--noflash", paths["noflash"], "--out", out, "--refine-steps", "15"]
+    code, stdout, err = _estimate(
+        args + ["--flash-intensity", "10", "--refine-target", "flash-only", "--json"], capsys
+    )
+    assert code == 0, err
+    summary = json.loads(stdout)
+    _check_outputs(out, summary)
+    refined = summary["rerender_error"]["refined"]
+    assert set(refined) >= {"flash", "noflash", "mean"}
+    assert all(np.isfinite(refined[s]["rmse"]) for s in ("flash", "noflash"))
+    assert refined["flash"]["rmse"] != summary["rerender_error"]["network"]["flash"]["rmse"]
+    code, _, err = _estimate(args + ["--refine-target", "flash"], capsys)
+    assert code == 2 and "--refine-target" in err and "flash-only" in err
+
+
 def test_estimate_near_far_from_capture_dir(tmp_path, capsys, fake_net):
     from ebr_mitsuba.capture import capture
 

@@ -262,6 +262,25 @@ def _intensities(
     return result
 
 
+def _refine_targets(
+    opts: RefineConfig, inputs: Inputs, shots: dict[str, Shot], targets: list[ShotTarget], mask: np.ndarray
+) -> list[ShotTarget]:
+    """What the refinement fits (``RefineConfig.target``): the input shots, or each flash shot's
+    flash-only image under its flash alone (a flash-only capture has nothing to subtract: its
+    targets are the shots already)."""
+    if opts.target == "photos" or inputs.flash_only:
+        return targets
+    return [
+        ShotTarget(
+            dataclasses.replace(shots[name], name=f"{name} − no-flash", env=False),
+            inputs.flash_only_image(far=name == "far_flash"),
+            mask,
+        )
+        for name in ("flash", "far_flash")
+        if name in shots
+    ]
+
+
 def _checked(pred: Prediction, size: int, flash_only: bool) -> tuple[SVBRDF, SGEnvironment | None]:
     """The prediction's maps (checked to be ``size``²) and environment (None in flash-only mode;
     no lobes when the model found none)."""
@@ -586,7 +605,9 @@ def run_estimate(
             def progress(step, total, loss, size):
                 steps(step, total, f"{size}x{size}, loss {loss:.4g}")
 
-            refined = refine(maps, env, targets, cfg.refine, progress, before=net_errors)
+            fit_targets = _refine_targets(cfg.refine, work_inputs, shots, targets, mask)
+            before = net_errors if fit_targets is targets else None
+            refined = refine(maps, env, fit_targets, cfg.refine, progress, before=before)
         release_memory()
         if refined.stopped:
             log(f"note: refinement {refined.budget_note()}")
@@ -594,6 +615,8 @@ def run_estimate(
             log(f"warning: refinement {refined.loss_note()}")
         final_maps, final_env = refined.maps, refined.env
         final_errors, final_renders = refined.after, refined.renders
+        if fit_targets is not targets:  # the written re-renders are of the input shots
+            final_errors, final_renders = rerender_errors(final_maps, final_env, targets, mode, spp, table)
         stage("refine", t0)
         if len(refined.levels) > 1:
             for lv in refined.levels:

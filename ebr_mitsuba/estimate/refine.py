@@ -156,6 +156,15 @@ class RefineConfig:
         "sg mode: the diffuse environment term from a table of R² normals (ebr_mitsuba.render.env_sg); "
         "0: exact per pair",
     )
+    target: str = option(
+        "photos",
+        "what the maps are fitted to: the input shots (photos: flash and no-flash under the SG "
+        "environment), or the flash-only image flash − no-flash under the flash alone (flash-only: no "
+        "environment term, so the SG approximation of the light cannot bias the maps)",
+        choices=("photos", "flash-only"),
+        flag="--refine-target",
+        metavar="T",
+    )
     basis: int = option(
         0,
         "specular and roughness as K basis materials with per-pixel weights (0: per pixel)",
@@ -166,7 +175,7 @@ class RefineConfig:
     )
 
 
-REFINE_FLAGS = ("steps", "lobes", "lr", "seconds", "basis", "mode")  # the fields ebr estimate sets
+REFINE_FLAGS = ("steps", "lobes", "lr", "seconds", "basis", "mode", "target")  # the fields ebr estimate sets
 
 
 @dataclass
