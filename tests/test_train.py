@@ -150,6 +150,33 @@ def test_checkpoint_round_trip_and_errors(tiny_model, tmp_path):
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # atomic writes leave nothing
 
 
+def test_export_records_the_warm_start_lineage(tiny_model, tmp_path):
+    """An export carries its run's summary and the runs it was warm-started from, earliest first,
+    read through ``[train].init`` (and through an init export's own lineage); a gone init file
+    is one ``missing`` entry; a run without an init has an empty lineage."""
+    root = ck.export_model(tiny_model, tmp_path / "root.pt")
+    data = ck.load_checkpoint(root)
+    assert data["lineage"] == [] and data["summary"]["phases"]
+    steps = {k: v["steps"] for k, v in data["summary"]["phases"].items()}
+
+    def child(init, name):
+        payload = ck.load_checkpoint(tiny_model)
+        payload["config"]["train"]["init"] = str(init)
+        payload["summary"] = {"phases": {"diffuse": {"steps": 7, "seconds": 36.0}}}
+        ck.save_checkpoint(tmp_path / f"{name}_run.pt", payload)
+        return ck.export_model(tmp_path / f"{name}_run.pt", tmp_path / f"{name}.pt")
+
+    first = ck.load_checkpoint(child(root, "first"))["lineage"]
+    assert len(first) == 1 and first[0]["checkpoint"] == str(root)
+    assert {k: v["steps"] for k, v in first[0]["phases"].items()} == steps
+    assert first[0]["resolution"] == 32
+    second = ck.load_checkpoint(child(tmp_path / "first.pt", "second"))["lineage"]
+    assert [r["checkpoint"] for r in second] == [str(root), str(tmp_path / "first.pt")]
+    assert second[1]["phases"] == {"diffuse": {"steps": 7, "seconds": 36.0}}
+    gone = ck.load_checkpoint(child(tmp_path / "gone.pt", "orphan"))["lineage"]
+    assert gone == [{"checkpoint": str(tmp_path / "gone.pt"), "missing": True}]
+
+
 # -- training -------------------------------------------------------------------------------------
 
 

@@ -662,7 +662,39 @@ def _model_card(summary: dict | None, run_dir: str | None) -> list[str]:
             f"| {name} | {p['steps']} | {p['first_loss']:.4f} | {p['final_loss']:.4f} | "
             f"{p['samples_per_s']:.1f} | {p['seconds']:.0f} |"
         )
-    return lines + ["", "![training loss per phase](models_loss.png)", ""]
+    return lines + ["", "![training loss per phase](models_loss.png)", "", *_lineage_lines(), ""]
+
+
+def _lineage_lines() -> list[str]:
+    """The shipped model's warm starts (its checkpoint's ``lineage``), earliest first."""
+    from ..model.checkpoint import load_checkpoint
+    from ..model.predict import shipped_model_path
+
+    runs = load_checkpoint(shipped_model_path()).get("lineage")
+    if not runs:
+        return ["The shipped checkpoint records no warm start."]
+    lines = [
+        "Warm-started from (earliest first; each run initialised from the one above, all weights):",
+        "",
+        "| run's checkpoint | grid | training data | phases (steps) | hours | source commit |",
+        "|---|---:|---|---|---:|---|",
+    ]
+    for r in runs:
+        if r.get("missing"):
+            lines.append(f"| `{r['checkpoint']}` | – | (file gone at export) | – | – | – |")
+            continue
+        phases = r.get("phases") or {}
+        steps = ", ".join(f"{k} {v['steps']}" for k, v in phases.items()) or "not recorded"
+        hours = f"{sum(v['seconds'] for v in phases.values()) / 3600:.2f}" if phases else "–"
+        lines.append(
+            f"| `{r['checkpoint']}` | {r.get('resolution') or '–'}² | `{r.get('train_data') or '–'}` | "
+            f"{steps} | {hours} | {str(r.get('git', 'unknown'))[:7]} |"
+        )
+    return lines + [
+        "",
+        "A run whose checkpoint carried no training record (exports before the lineage) has its "
+        "phases and hours in that commit's `docs/models.md`.",
+    ]
 
 
 def _baseline_lines(results: dict) -> list[str]:

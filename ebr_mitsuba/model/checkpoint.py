@@ -19,6 +19,10 @@ key                 content
 ``rng``             torch/numpy RNG states for an exact resume (None in exports)
 ``git``             the source tree's commit hash (``"unknown"`` outside a git checkout)
 ``version``         ebr-mitsuba version
+``summary``         per phase of this run: steps, final loss, seconds (training checkpoints;
+                    kept in exports)
+``lineage``         exports only: the runs this model was warm-started from, earliest first
+                    (:func:`lineage_entry`); ``[]`` for a model trained from scratch
 ==================  ===========================================================================
 
 :func:`save_checkpoint` writes through :func:`ebr_mitsuba.fsutil.atomic_path` (a killed run never
@@ -131,9 +135,47 @@ def load_checkpoint(path: str | Path, expect_kind: str | None = None, map_locati
     return data
 
 
+def lineage_entry(path: str | Path, data: dict) -> dict:
+    """One run of a model's lineage, described from its checkpoint ``data`` (read from ``path``):
+    ``checkpoint`` (the path it was read from), ``git``, ``resolution`` (its grid), ``train_data``
+    (its ``[data].train``) and ``phases`` (name → steps and seconds; ``{}`` when the checkpoint
+    carries no summary, as exports before the lineage did not)."""
+    summary = data.get("summary") if isinstance(data.get("summary"), dict) else {}
+    phases = {
+        name: {"steps": int(p.get("steps", 0)), "seconds": float(p.get("seconds", 0.0))}
+        for name, p in summary.get("phases", {}).items()
+    }
+    config = data.get("config") if isinstance(data.get("config"), dict) else {}
+    return {
+        "checkpoint": str(path),
+        "git": data.get("git", "unknown"),
+        "resolution": data.get("data", {}).get("resolution"),
+        "train_data": config.get("data", {}).get("train"),
+        "phases": phases,
+    }
+
+
+def lineage(data: dict) -> list[dict]:
+    """The runs a checkpoint (``data``) was warm-started from, earliest first: its own ``lineage``
+    when it is an export that has one; else its ``[train].init`` checkpoint's lineage plus that
+    checkpoint itself (one entry, ``{"checkpoint": path, "missing": True}``, when the init file is
+    gone); ``[]`` without an init."""
+    if isinstance(data.get("lineage"), list):
+        return data["lineage"]
+    config = data.get("config") if isinstance(data.get("config"), dict) else {}
+    init = config.get("train", {}).get("init")
+    if not init:
+        return []
+    if not Path(init).is_file():
+        return [{"checkpoint": str(init), "missing": True}]
+    parent = load_checkpoint(init)
+    return [*lineage(parent), lineage_entry(init, parent)]
+
+
 def export_model(checkpoint: str | Path, out: str | Path, half: bool = True) -> Path:
     """A deployable copy of ``checkpoint``: weights (float16 when ``half``), configs, data facts,
-    step and git hash; no optimizer or RNG state (what ships in :mod:`ebr_mitsuba.models`)."""
+    step, git hash, its run's summary and its :func:`lineage`; no optimizer or RNG state (what
+    ships in :mod:`ebr_mitsuba.models`)."""
     data = load_checkpoint(checkpoint)
 
     def convert(state: dict) -> dict:
@@ -150,6 +192,9 @@ def export_model(checkpoint: str | Path, out: str | Path, half: bool = True) -> 
     )
     if "metrics" in data:
         payload["metrics"] = data["metrics"]
+    if isinstance(data.get("summary"), dict):
+        payload["summary"] = data["summary"]
+    payload["lineage"] = lineage(data)
     out = Path(out)
     with atomic_path(out) as tmp:
         torch.save({"format": CHECKPOINT_FORMAT, **payload}, tmp)
@@ -161,6 +206,8 @@ __all__ = [
     "KINDS",
     "export_model",
     "git_hash",
+    "lineage",
+    "lineage_entry",
     "load_checkpoint",
     "save_checkpoint",
     "upgrade_config",
