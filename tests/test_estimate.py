@@ -821,6 +821,33 @@ def test_alignment_refuses_only_confident_shifts(tmp_path):
     assert load_inputs(cap / "flash.exr", cap / "noflash.exr").alignment["near"]["confident"]
 
 
+def test_refinement_leaves_fixed_maps_alone():
+    """``fixed`` maps come back exactly as they went in while the free ones move and the photos'
+    error falls; fixing specular or roughness beside a basis prior is refused with the fix."""
+    from ebr_mitsuba.estimate.refine import RefineConfig, ShotTarget, refine
+
+    n = 16
+    truth = _material(n)
+    shots = [near_shot(True), near_shot(False)]
+    photos = _render(truth, shots)
+    targets = [ShotTarget(s, photos[s.name], np.ones((n, n), bool)) for s in shots]
+    start = SVBRDF(
+        normal=truth.normal,
+        diffuse=np.clip(truth.diffuse * 0.6 + 0.1, 0, 1),
+        specular=np.full((n, n, 3), 0.2, np.float32),
+        roughness=np.full((n, n), 0.7, np.float32),
+    )
+    res = refine(start, ENV, targets, RefineConfig(steps=20, fixed=["specular", "roughness"]))
+    assert res.after["mean"]["rmse"] < res.before["mean"]["rmse"]
+    np.testing.assert_array_equal(res.maps.specular, start.specular)
+    np.testing.assert_array_equal(res.maps.roughness, start.roughness)
+    assert np.abs(res.maps.diffuse - start.diffuse).max() > 1e-3
+    with pytest.raises(InputError, match="--refine-fixed roughness with --refine-basis 2"):
+        RefineConfig(basis=2, fixed=["roughness"])
+    with pytest.raises(InputError, match="--refine-fixed"):
+        RefineConfig(fixed=["albedo"])
+
+
 def test_refinement_keeps_the_best_iterate():
     """A diverging refinement (learning rate 30) returns the maps it started from and says the loss
     rose; an oscillating one (lr 0.3, no decay) returns its best iterate, the one a shorter run

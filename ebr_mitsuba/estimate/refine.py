@@ -69,6 +69,10 @@ logits) mixed per pixel, ``Σ_k w_k(x) (F0_k, r_k)`` with w the softmax of K fre
 (K = 1: one constant specular and roughness); diffuse and normal stay per pixel. The bases start
 from a k-means of the network's (F0, roughness) pixels (:func:`basis_params`); the prior term
 then covers diffuse and normal only. Measured on the test split in ``docs/models.md``.
+
+Fixed maps (``fixed``, ``--refine-fixed MAP ...``): the named maps are not optimised (no Adam
+state; they keep the start's values at every level), e.g. ``specular roughness`` to keep the
+flash fit's values and let the photos move only the diffuse map and the normals.
 """
 
 from __future__ import annotations
@@ -92,6 +96,8 @@ _EPS = 1e-3
 REFINE_BYTES_PER_PIXEL = 600  # measured: a 2048² level took 2.5 GB (parameters, Adam, AD graph)
 REFINE_MEMORY = 1.5e9  # bytes a refinement level may take; larger levels are not run (see refine)
 MAX_BASIS = 8  # most basis materials of the specular/roughness prior
+MAP_KEYS = ("normal", "diffuse", "specular", "roughness")  # the maps, as --refine-fixed names them
+_PARAM_OF = {"normal": "normal_xy", "diffuse": "diffuse", "specular": "specular", "roughness": "roughness"}
 
 
 @dataclass(frozen=True)
@@ -173,9 +179,30 @@ class RefineConfig:
         flag="--refine-basis",
         metavar="K",
     )
+    fixed: list[str] = option(
+        [],
+        "maps the refinement leaves as the network gave them (e.g. specular roughness: the flash fit's "
+        "values, which one co-located view cannot improve)",
+        choices=MAP_KEYS,
+        flag="--refine-fixed",
+        metavar="MAP",
+        nargs="+",
+    )
+
+    def __post_init__(self):
+        from ..typedconfig import check
+
+        check(self)
+        clash = sorted({"specular", "roughness"} & set(self.fixed))
+        if self.basis and clash:
+            raise InputError(
+                f"--refine-fixed {' '.join(clash)} with --refine-basis {self.basis}: the basis materials "
+                "are the specular and roughness; drop one of the two"
+            )
 
 
-REFINE_FLAGS = ("steps", "lobes", "lr", "seconds", "basis", "mode", "target")  # the fields ebr estimate sets
+# the fields ebr estimate sets
+REFINE_FLAGS = ("steps", "lobes", "lr", "seconds", "basis", "mode", "target", "fixed")
 
 
 @dataclass
@@ -673,11 +700,14 @@ class _Level:
 
         config = self.config
         params = _Params(start, env, config.lobes, config.basis)
+        frozen = {_PARAM_OF[name] for name in config.fixed}
         opt = dr.opt.Adam(lr=config.lr)
         for k, v in params.values.items():
-            opt[k] = v
-        base_lr = {k: config.lr for k in params.values}
-        base_lr["normal_xy"] = config.normal_lr
+            if k not in frozen:
+                opt[k] = v
+        base_lr = {k: config.lr for k in params.values if k not in frozen}
+        if "normal_xy" in base_lr:
+            base_lr["normal_xy"] = config.normal_lr
         if params.lobes:
             for k in ("axis", "log_sharpness", "log_amplitude"):
                 base_lr[k] = config.lobe_lr
@@ -687,7 +717,7 @@ class _Level:
         stopped = False
         step = 0
         for step in range(steps + 1):
-            p = {k: opt[k] for k in params.values}
+            p = {k: params.values[k] if k in frozen else opt[k] for k in params.values}
             loss = self.objective(params, p)
             late = deadline is not None and time.perf_counter() > deadline and step < steps
             read = step % config.log_every == 0 or step == steps or late
