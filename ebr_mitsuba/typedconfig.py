@@ -592,7 +592,7 @@ def add_flags(parser, cls, names: Sequence[str], *, base=None, rename: Mapping |
             continue
         shown = default_text(f, base)
         shown = shown[1:-1] if isinstance(default, str) and shown == json.dumps(default) else shown
-        if isinstance(default, (list, tuple)) and shown == default_text(f):
+        if isinstance(default, (list, tuple)) and m.shown is None and shown == default_text(f):
             shown = ",".join(f"{v:g}" if isinstance(v, float) else str(v) for v in default)
         text = f"{text} [{shown}]".replace("%", "%%")
         if inner is bool:

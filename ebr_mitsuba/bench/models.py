@@ -68,14 +68,18 @@ PAPER_ROW = {
 }
 REGENERATE = """\
 export EBR_DATA_DIR=../shared/data EBR_SPLIT_DATA=/tmp/ebr-data/real_test \\
-       EBR_TRAIN_DATA=/tmp/ebr-data/real_train EBR_VAL_DATA=/tmp/ebr-data/real_val
+       EBR_TRAIN_DATA=/tmp/ebr-data/real_train_256 EBR_VAL_DATA=/tmp/ebr-data/real_val
 ebr generate configs/data_real_test.toml --out $EBR_SPLIT_DATA --workers 2    # metered, Mitsuba 256 spp
-ebr generate configs/data_real_train.toml --out $EBR_TRAIN_DATA --workers 2   # training; mean-maps baseline
+ebr generate configs/data_real_train.toml --out /tmp/ebr-data/real_train --workers 2  # the 128² phase
+ebr generate configs/data_real_train_256.toml --out $EBR_TRAIN_DATA --workers 2  # 256² phase; mean maps
 ebr generate configs/data_real_val.toml --out $EBR_VAL_DATA --workers 2       # model selection
-git show 93c04ca:ebr_mitsuba/models/ebrenv_small.pt > /tmp/ebr-runs/previous_small.pt  # baseline (iii)
-ebr bench sizes   # the size curve (docs/bench/sizes.md); its medium run starts the shipped model's:
-EBR_INIT=/tmp/ebr-size-curve/medium/model.pt ebr train configs/train_real.toml --out /tmp/ebr-runs/real \\
-  --export ebr_mitsuba/models/ebrenv_real.pt   # the shipped model
+git show 93c04ca:ebr_mitsuba/models/ebrenv_small.pt > /tmp/ebr-runs/previous_small.pt  # the 64² model
+ebr bench sizes   # the size curve (docs/bench/sizes.md); its medium run starts the 128² phase:
+EBR_TRAIN_DATA=/tmp/ebr-data/real_train EBR_INIT=/tmp/ebr-size-curve/medium/model.pt \\
+  ebr train configs/train_real.toml --out /tmp/ebr-runs/real --export /tmp/ebr-runs/real128.pt
+# (or its export as shipped until 2026-12-05: git show 29ffed6:ebr_mitsuba/models/ebrenv_real.pt)
+EBR_INIT=/tmp/ebr-runs/real128.pt ebr train configs/train_real_256.toml --out /tmp/ebr-runs/real_256 \\
+  --export ebr_mitsuba/models/ebrenv_real.pt   # the shipped model, 256²
 export EBR_NEAR_FAR_DATA=/tmp/ebr-data/real_nf_test  # the near-far section (optional)
 ebr generate configs/data_real_near_far_test.toml --out $EBR_NEAR_FAR_DATA --workers 2
 ebr generate configs/data_real_near_far_train.toml --out /tmp/ebr-data/real_nf_train --workers 2
@@ -85,9 +89,9 @@ EBR_TRAIN_DATA=/tmp/ebr-data/real_nf_train EBR_INIT=/tmp/ebr-runs/previous_small
 ebr generate configs/data_small_train.toml --out /tmp/ebr-data/small_train --workers 2
 EBR_TRAIN_DATA=/tmp/ebr-data/small_train EBR_INIT=/tmp/ebr-runs/previous_small.pt \\
   ebr train configs/train_small_noexemplars.toml --out /tmp/ebr-runs/noexemplars  # baseline (iv)
-EBR_CANDIDATES="previously shipped model=/tmp/ebr-runs/previous_small.pt;\\
-model without exemplars=/tmp/ebr-runs/noexemplars/model.pt" EBR_REFINE='{"steps": 100}' \\
-  EBR_SHIPPED_RUN=/tmp/ebr-runs/real ebr bench models  # this page"""
+EBR_CANDIDATES="previously shipped model=/tmp/ebr-runs/real128.pt;\\
+model without exemplars=/tmp/ebr-runs/noexemplars/model.pt" \\
+  EBR_REFINE='{"steps": 100}' EBR_SHIPPED_RUN=/tmp/ebr-runs/real_256 ebr bench models  # this page"""
 
 
 def unavailable() -> str | None:

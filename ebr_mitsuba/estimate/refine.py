@@ -179,14 +179,15 @@ class RefineConfig:
         flag="--refine-basis",
         metavar="K",
     )
-    fixed: list[str] = option(
-        [],
+    fixed: tuple[str, ...] = option(
+        (),
         "maps the refinement leaves as the network gave them (e.g. specular roughness: the flash fit's "
         "values, which one co-located view cannot improve)",
         choices=MAP_KEYS,
         flag="--refine-fixed",
         metavar="MAP",
         nargs="+",
+        shown="none",
     )
 
     def __post_init__(self):

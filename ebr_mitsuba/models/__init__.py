@@ -1,9 +1,11 @@
 """Trained models shipped with ebr-mitsuba (package data; see docs/models.md).
 
 ``ebrenv_real.pt``: the EBREnv lighting net (NAFNet ``small``) + cascade (NAFNet ``medium``, the
-size the curve of ``ebr bench sizes`` picks) of ``configs/train_real.toml``, trained on the real
-texture sets and HDR maps (128² grid, float16 weights), loaded by
-:func:`ebr_mitsuba.model.predict.load_model` when no checkpoint is given. It replaced
+size the curve of ``ebr bench sizes`` picks), trained on the real texture sets and HDR maps by
+the progressive recipe: ``configs/train_real.toml`` at 128², then ``configs/train_real_256.toml``
+at 256² (256² grid since 2026-12-05, float16 weights; its checkpoint's ``lineage`` names the
+phases), loaded by :func:`ebr_mitsuba.model.predict.load_model` when no checkpoint is given. The
+128² model it continues is ``git show 29ffed6:ebr_mitsuba/models/ebrenv_real.pt``. It replaced
 ``ebrenv_small.pt`` (``configs/train_small.toml``, procedural data, 64²) on 2026-12-04; that file is
 in the git history (``git show 93c04ca:ebr_mitsuba/models/ebrenv_small.pt``).
 ``ebrenv_near_far.pt``: the previous model's networks reading the four shots of a near-far capture
