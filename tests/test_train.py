@@ -177,6 +177,29 @@ def test_export_records_the_warm_start_lineage(tiny_model, tmp_path):
     assert gone == [{"checkpoint": str(tmp_path / "gone.pt"), "missing": True}]
 
 
+def test_models_page_reads_the_training_record_from_the_export(tiny_model, tmp_path):
+    """Without the run directory, ``ebr bench models`` takes the shipped model's training table
+    from the record its export carries: every phase's steps, final loss and seconds, the columns
+    only the run's log has shown as "–", no loss plot; an export without a record gives None."""
+    from ebr_mitsuba.bench import models as bm
+
+    exported = ck.export_model(tiny_model, tmp_path / "export.pt")
+    summary = bm.checkpoint_summary(exported)
+    record = ck.load_checkpoint(exported)["summary"]["phases"]
+    assert summary["from_checkpoint"] and set(summary["phases"]) == set(record)
+    for name, phase in summary["phases"].items():
+        assert phase["steps"] == record[name]["steps"] and phase["seconds"] == record[name]["seconds"]
+        assert phase["first_loss"] is None and phase["curve"] is None
+    lines = "\n".join(bm._model_card(summary, None))
+    assert "carried by the checkpoint" in lines and "models_loss.png" not in lines
+    first = next(iter(summary["phases"]))
+    assert f"| {first} | {record[first]['steps']} | – |" in lines
+    payload = ck.load_checkpoint(tiny_model)
+    payload.pop("summary", None)
+    ck.save_checkpoint(tmp_path / "bare.pt", payload)
+    assert bm.checkpoint_summary(tmp_path / "bare.pt") is None
+
+
 # -- training -------------------------------------------------------------------------------------
 
 

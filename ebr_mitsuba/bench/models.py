@@ -165,6 +165,37 @@ def training_summary(run_dir: Path) -> dict:
     }
 
 
+def checkpoint_summary(path: Path) -> dict | None:
+    """The training record an export carries (its run's phases: steps, final loss, seconds; no
+    first loss, rate or loss curve), shaped as :func:`training_summary`'s, for a shipped model
+    whose run directory is gone; None when the checkpoint carries none."""
+    from ..model.checkpoint import load_checkpoint
+
+    data = load_checkpoint(path)
+    phases = (data.get("summary") or {}).get("phases")
+    if not phases:
+        return None
+    cfg = data.get("config") or {}
+    return {
+        "phases": {
+            name: {
+                "steps": p["steps"],
+                "first_loss": None,
+                "final_loss": p["final_loss"],
+                "seconds": p["seconds"],
+                "samples_per_s": None,
+                "curve": None,
+            }
+            for name, p in phases.items()
+        },
+        "samples": None,
+        "device": None,
+        "loss": cfg.get("loss", {}),
+        "train_data": (cfg.get("data") or {}).get("train"),
+        "from_checkpoint": True,
+    }
+
+
 def objective_text(loss: dict) -> str:
     """One sentence on the training objective of a run, from its ``[loss]`` settings."""
     maps = ", ".join(f"{k} {loss[k]:g}" for k in ("normal", "diffuse", "specular", "roughness") if k in loss)
@@ -410,7 +441,7 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
         oracle_predictor,
     )
     from ..fsutil import atomic_write_text
-    from ..model.predict import load_predictor
+    from ..model.predict import load_predictor, shipped_model_path
 
     data = os.environ.get("EBR_SPLIT_DATA")
     if not data or not Path(data).is_dir():
@@ -496,8 +527,8 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
     _sheet([_small(t) for t in truth_maps], records, out_dir / "models_maps.jpg")
     _plot_classes(results, out_dir / "models_classes.png")
     run_dir = os.environ.get("EBR_SHIPPED_RUN")
-    summary = training_summary(Path(run_dir)) if run_dir else None
-    if summary:
+    summary = training_summary(Path(run_dir)) if run_dir else checkpoint_summary(shipped_model_path())
+    if summary and not summary.get("from_checkpoint"):
         _plot_loss(summary, out_dir / "models_loss.png")
     from .ablation import read_ablation
 
@@ -653,20 +684,35 @@ def _model_card(summary: dict | None, run_dir: str | None) -> list[str]:
     if not summary:
         return lines + ["(No training run given: set `EBR_SHIPPED_RUN` for the training summary.)", ""]
     total = sum(p["seconds"] for p in summary["phases"].values())
+    if summary.get("from_checkpoint"):
+        lines += [
+            f"Training record carried by the checkpoint (its run directory was not given: "
+            f"`EBR_SHIPPED_RUN`): data `{summary.get('train_data')}`, {total / 3600:.2f} h in all. "
+            f"{objective_text(summary.get('loss', {}))} Final loss: as logged at the phase's end; first "
+            "losses, rates and loss curves are in the run's `log.csv` only.",
+        ]
+    else:
+        lines += [
+            f"Training run `{run_dir}` on {summary['device']}, {summary['samples']} samples, "
+            f"{total / 3600:.2f} h in all. {objective_text(summary.get('loss', {}))} Loss columns: mean of "
+            "the last four logged values; learning rate cosine-decayed per phase.",
+        ]
     lines += [
-        f"Training run `{run_dir}` on {summary['device']}, {summary['samples']} samples, "
-        f"{total / 3600:.2f} h in all. {objective_text(summary.get('loss', {}))} Loss columns: mean of the "
-        "last four logged values; learning rate cosine-decayed per phase.",
         "",
         "| phase | steps | first loss | final loss | samples / s | seconds |",
         "|---|---:|---:|---:|---:|---:|",
     ]
+
+    def num(x, fmt):
+        return "–" if x is None else format(x, fmt)
+
     for name, p in summary["phases"].items():
         lines.append(
-            f"| {name} | {p['steps']} | {p['first_loss']:.4f} | {p['final_loss']:.4f} | "
-            f"{p['samples_per_s']:.1f} | {p['seconds']:.0f} |"
+            f"| {name} | {p['steps']} | {num(p['first_loss'], '.4f')} | {p['final_loss']:.4f} | "
+            f"{num(p['samples_per_s'], '.1f')} | {p['seconds']:.0f} |"
         )
-    return lines + ["", "![training loss per phase](models_loss.png)", "", *_lineage_lines(), ""]
+    plot = [] if summary.get("from_checkpoint") else ["![training loss per phase](models_loss.png)", ""]
+    return lines + ["", *plot, *_lineage_lines(), ""]
 
 
 def _lineage_lines() -> list[str]:

@@ -43,7 +43,7 @@ EstimateConfig (ebr_mitsuba.estimate.pipeline), RefineConfig (ebr_mitsuba.estima
 and MultiViewConfig (ebr_mitsuba.estimate.multiview: --views), listed below by the mode they apply
 to; docs/config.md has their tables.
 
-Sizes: the lighting is estimated once at the model's grid (64x64 for the shipped model); the maps
+Sizes: the lighting is estimated once at the model's grid (256x256 for the shipped model); the maps
 at the photos' resolution up to --max-size. Photos smaller than 32 pixels on the shorter side are
 refused (exit 2). The refinement runs coarse to fine (from at most 256x256 up to the working size).
 

@@ -150,6 +150,24 @@ held-out re-render of that capture 16.8 → 17.5 (a highlight this sharp that is
 right scores worse the sharper it is; the others unchanged). Its roughness and F0 are still off
 by about one grid step and 30 % (cause not found; its normals are flat).
 
+Tried and dropped (2026-12-05): the network's mean roughness as a Gaussian prior on the fitted
+one, weighed against each grid roughness's rise in cost above the minimum. On the validation
+captures (``configs/data_real_val.toml``, 24) the fitted roughness's RMSE against the truth maps
+is 0.0734, the network's mean 0.0824 (the materials' own spread, what a perfect constant scores,
+0.0571); over prior spreads 0.03–0.4 and cost tolerances 0.03–3 × the minimum cost the prior gave
+0.0721–0.0818, the best only for the loosest prior. The fit's large errors are not flat minima a
+prior could settle: a rock (acg_Rock006) read 0.76 against a truth of 0.64 has its cost at the
+true roughness 0.064 above the minimum, more than the minimum itself, a confident misreading of
+its relief.
+
+Tried and dropped (2026-12-05): denoising the texture pattern with the no-flash shot's. Per band
+(the 3 × 3 detail and the rest) the two shots' pattern deviations were combined by their noise
+variances and shrunk by signal / (signal + noise), the signal power being the shots' covariance.
+On the same 24 validation captures the estimate's diffuse RMSE went 0.04758 → 0.04750 (mean
+0.0459 → 0.04588); leaning more on the denoised pattern (network weight 0.3, 0.15 instead of the
+default 0.5) made it worse, 0.04934 and 0.05184. The pattern's noise is not what limits the diffuse
+map here; the network's share already averages it.
+
 Input convention: ``flash`` and ``noflash`` are (H, W, 3) linear photo values (saturating at
 ``clip``); ``to_radiance`` scales them to the units where the flash has intensity ``intensity``
 (the reference exposure, ``docs/conventions.md#exposure``). Cost: one pass over the image per

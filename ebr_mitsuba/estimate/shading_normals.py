@@ -47,6 +47,11 @@ explains under 1 % and moves the normal RMSE by under 0.001. On the fixed test s
 ``ebr bench models`` run, docs/models.md) it did not carry over: normal RMSE 0.0356 → 0.0365,
 mean per-map 0.0326 → 0.0328, spread 0.16 → 0.32 of the truth's.
 
+Tried and dropped (2026-12-05): applying the normals only where the fit explains at least a
+share s of the ratio's variance (else the network's): validation normal RMSE 0.0480 for s = 0
+(as shipped), 0.003 and 0.02, 0.0481 for 0.01, 0.0490 for 0.03: the captures it
+moves little are the ones it explains little, so a gate changes nothing the gain depends on.
+
 Glossy samples are left alone. A specular lobe's glints in the flash shot follow the normals far
 more steeply than the diffuse shading does, and the fit then overshoots ``c`` (a glazed tile:
 normal RMSE 0.0555 flat, 0.0658 ungated). ``glint_ratio`` = F0 / (4 α² ρ), the flash fit's
