@@ -383,3 +383,26 @@ def test_lobe_table_resolves_a_sharp_lobe():
     footprint = float(_LobeTable(v[:, 2].contiguous(), _footprint_cos(RES, RES, camera))(r, 1.0).sum())
     assert abs(footprint / integral - 1) <= 0.02, (footprint, integral)
     assert abs(centres / integral - 1) > abs(footprint / integral - 1), (centres, footprint, integral)
+
+
+def test_misfit_recorded_and_the_network_roughness_taken_above_the_limit():
+    """A clean single-lobe capture fits its rings closely (misfit far below the default limit);
+    above a limit the network's roughness map replaces the fitted constant (module docstring,
+    "Misfit"), diffuse and F0 unchanged; a metal never falls back."""
+    flash, noflash, exposure = _capture(_uniform((0.3, 0.3, 0.3)), (0.04,) * 3, 0.4)
+    fit = fit_flash(flash, noflash, to_radiance=1 / exposure)
+    assert fit.misfit is not None and fit.misfit < FlashFitConfig().misfit_limit / 10, fit.misfit
+    assert not fit.misfits(FlashFitConfig().misfit_limit) and fit.misfits(fit.misfit / 2)
+    net = np.linspace(0.2, 0.6, RES * RES, dtype=np.float32).reshape(RES, RES, 1)
+    swapped = fit.with_network_roughness(net)
+    flat = np.dstack([np.zeros((RES, RES, 2)), np.ones((RES, RES))])
+    maps, before = swapped.maps(flat), fit.maps(flat)
+    np.testing.assert_array_equal(np.asarray(maps.roughness).reshape(RES, RES), net[..., 0])
+    np.testing.assert_array_equal(maps.diffuse, before.diffuse)
+    np.testing.assert_array_equal(maps.specular, before.specular)
+    assert swapped.to_json()["roughness_from"] == "network" and fit.to_json()["roughness_from"] == "fit"
+    with pytest.raises(InputError, match="roughness map"):
+        fit.with_network_roughness(np.zeros((3, 3), np.float32))
+    from dataclasses import replace
+
+    assert not replace(fit, metal=True).misfits(0.0)

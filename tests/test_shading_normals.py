@@ -134,3 +134,25 @@ def test_bad_inputs():
         fit_shading_normals(flash, noflash, camera_height=NEAR_DISTANCE, saturated=np.ones((RES, RES), bool))
     with pytest.raises(InputError, match="gain"):
         ShadingNormalsConfig(gain=-1)
+
+
+def test_large_photos_are_fitted_at_fit_size_and_upsampled():
+    """Above ``fit_size`` the fit runs on the area-averaged photos (module docstring,
+    "Resolution"): the same coefficient as fitting those by hand, normals at the photos' size,
+    unit length and the truth's slopes."""
+    from ebr_mitsuba.imageio import resize_area
+
+    albedo = _albedo(5)
+    truth = _relief(albedo, 0.01)
+    flash, noflash, _ = _capture(albedo, truth)
+    small = ShadingNormalsConfig(fit_size=64)
+    fit = fit_shading_normals(flash, noflash, camera_height=NEAR_DISTANCE, options=small)
+    by_hand = fit_shading_normals(
+        resize_area(flash, (64, 64)), resize_area(noflash, (64, 64)), camera_height=NEAR_DISTANCE
+    )
+    assert fit.normal.shape == (RES, RES, 3)
+    assert fit.coefficient == by_hand.coefficient and fit.pixels == by_hand.pixels
+    assert np.allclose(np.linalg.norm(fit.normal, axis=-1), 1.0, atol=1e-5)
+    assert _slope_correlation(fit.normal, truth) > 0.6
+    full = fit_shading_normals(flash, noflash, camera_height=NEAR_DISTANCE)  # 128 ≤ 256: full size
+    assert full.pixels > by_hand.pixels

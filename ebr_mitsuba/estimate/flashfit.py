@@ -113,6 +113,18 @@ differences (relative to the near level, plus the near saturation terms); the le
 metal and the maps come from the near shots as before. The far flash intensity is the near one ×
 (far / near distance)² unless ``capture.json`` states both (``ebr estimate``).
 
+Misfit. The kept profile's ring residual (mean squared, relative to the level: the fit term of
+its cost, the two-lobe pair's for a relief; ``FlashFit.misfit``, estimate.json's
+``flash_fit.misfit``) tells whether one lobe over the albedo describes the rings at all. On the
+validation captures (``configs/data_real_val.toml``, 24) it is 1e-5–9e-4 for the 20 roughnesses
+read within 0.1 of the truth and 0.007–0.022 for the four read 0.11–0.12 off (a rusty painted
+metal 0.70 for 0.82, acg_Rock006 twice 0.75–0.76 for 0.64, acg_Tiles011 0.31 for 0.19: relief
+and texture the single lobe misreads). Above ``misfit_limit`` (0.003, between the two groups)
+``ebr estimate`` keeps the network's roughness map (``FlashFit.with_network_roughness``; the
+fit's diffuse and F0 stay): validation roughness RMSE 0.0734 → 0.0663, mean per-map RMSE 0.0459
+→ 0.0441, the other maps unchanged; any limit from 0.001 to 0.007 picks the same four. A metal,
+and a roughness read off the far pair, record no misfit and keep the fit.
+
 ``ebr estimate`` runs the fit by default after the network (``--no-flash-fit``: the network's
 maps) and keeps the network's normals; ``ebr bench models`` scores both on the test split
 (``docs/models.md``).
@@ -148,7 +160,11 @@ copper above reads roughness 0.08 and F0 0.54 / 0.28 / 0.001; on the 24 validati
 only its maps changed: mean per-map RMSE 0.0483 → 0.0468 (specular 0.0198 → 0.0144), the
 held-out re-render of that capture 16.8 → 17.5 (a highlight this sharp that is not exactly
 right scores worse the sharper it is; the others unchanged). Its roughness and F0 are still off
-by about one grid step and 30 % (cause not found; its normals are flat).
+by about one grid step and 30 % (cause not found; its normals are flat). The full-size maps of a
+photo larger than FOOTPRINT_MAX_SIZE (1024) read the lobe at pixel centres: the footprint's
+error falls with the pixel's area (at 1024² about 2.4 % / 64 for roughness 0.08), while its nine
+points per pixel cost 9 × 8 bytes per table weight (at 2048², with the view directions they are
+made of, the peak of ``ebr estimate`` went from 2.1 to 4.3 GB; docs/bench/estimate.md).
 
 Tried and dropped (2026-12-05): the network's mean roughness as a Gaussian prior on the fitted
 one, weighed against each grid roughness's rise in cost above the minimum. On the validation
@@ -203,6 +219,7 @@ NETWORK_WEIGHT_SIZE = 256  # above this side the photo pattern's weight falls as
 TABLE_SIZE = 1024  # θ samples of the tabulated lobe (linear interpolation per pixel)
 FOOTPRINT_ROUGHNESS = 0.3  # below it the lobe is averaged over each pixel's footprint ...
 FOOTPRINT_SAMPLES = 3  # ... at FOOTPRINT_SAMPLES² points per pixel
+FOOTPRINT_MAX_SIZE = 1024  # ... for the full-size maps only up to this side (module docstring)
 
 
 @config(error=InputError)
@@ -251,6 +268,12 @@ class FlashFitConfig:
         "a two-lobe profile of the near rings that fits RELIEF_GAIN times better than one lobe reads "
         "the relief as the broad lobe and keeps the sharp one's roughness (module docstring)",
     )
+    misfit_limit: float = option(
+        0.003,
+        "ring residual (mean squared, relative to the level) above which the fitted roughness is "
+        'replaced by the network\'s map (module docstring, "Misfit"; inf: never)',
+        minimum=0,
+    )
     noflash_albedo: bool = option(
         True,
         "near shots alone: read each ring's share of the albedo off the no-flash shot (module docstring)",
@@ -287,6 +310,8 @@ class FlashFit:
     specular_rgb: np.ndarray | None = None
     far_pair: bool = False  # the roughness was read off near − far (module docstring, "The far pair")
     relief: dict | None = None  # the two-lobe profile that won (module docstring, "Relief"), or None
+    misfit: float | None = None  # the kept profile's ring residual (module docstring, "Misfit")
+    roughness_map: np.ndarray | None = None  # (H, W): set by with_network_roughness, else constant
 
     def maps(self, normal: np.ndarray, source: str = "flash fit"):
         """The fitted maps as an :class:`~ebr_mitsuba.svbrdf.SVBRDF` with ``normal`` (H, W, 3):
@@ -296,8 +321,26 @@ class FlashFit:
         h, w = self.diffuse.shape[:2]
         rgb = self.specular_rgb if self.specular_rgb is not None else np.full(3, self.f0, np.float32)
         specular = np.broadcast_to(np.asarray(rgb, np.float32), (h, w, 3)).copy()
-        roughness = np.full((h, w), self.roughness, np.float32)
+        if self.roughness_map is not None:
+            roughness = np.asarray(self.roughness_map, np.float32).reshape(h, w).copy()
+        else:
+            roughness = np.full((h, w), self.roughness, np.float32)
         return SVBRDF(np.asarray(normal, np.float32), self.diffuse, specular, roughness, source)
+
+    def misfits(self, limit: float) -> bool:
+        """Whether the kept lobe profile explains the rings too poorly to be trusted: its ring
+        residual ``misfit`` above ``limit`` (module docstring, "Misfit"); never for a metal or a
+        roughness read off the far pair (no misfit recorded)."""
+        return not self.metal and self.misfit is not None and self.misfit > limit
+
+    def with_network_roughness(self, network_roughness: np.ndarray) -> FlashFit:
+        """The fit with the network's (H, W) or (H, W, 1) roughness map in place of the fitted
+        constant (module docstring, "Misfit"); diffuse, level and F0 stay the fit's."""
+        net = np.asarray(network_roughness, np.float32)
+        h, w = self.diffuse.shape[:2]
+        if net.size != h * w:
+            raise InputError(f"flash fit: the network's roughness map is {net.shape}; expected ({h}, {w})")
+        return replace(self, roughness_map=net.reshape(h, w), roughness=float(net.mean()))
 
     def with_network_diffuse(self, network_diffuse: np.ndarray, weight: float) -> FlashFit:
         """The fit with its diffuse map blended with a network's (H, W, 3) diffuse map, scaled per
@@ -338,6 +381,8 @@ class FlashFit:
             "metal": self.metal,
             "far_pair": self.far_pair,
             "relief": self.relief,
+            "misfit": None if self.misfit is None else float(f"{self.misfit:.3g}"),
+            "roughness_from": "network" if self.roughness_map is not None else "fit",
         }
 
 
@@ -404,7 +449,8 @@ def _level(ratio: torch.Tensor, ok: torch.Tensor, lobe: torch.Tensor, statistic:
 
 def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, opts, far=None):
     """The roughness of lowest cost, whether the metal hypothesis wins, the grid and its costs,
-    and whether the far rings were used (module docstring); ``saturated`` (H, W) bool; ``far``:
+    whether the far rings were used, the relief record and the kept profile's misfit (None: a
+    metal or the far pair) (module docstring); ``saturated`` (H, W) bool; ``far``:
     None or a :class:`FarPair` (its rings are the near rings' pixels, "The far pair")."""
 
     flash = np.asarray(flash, np.float64)
@@ -516,6 +562,7 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
     # dielectric: g = L·p + lobe (F0 = f0); metal: g = m · lobe / f0 (no diffuse, F0 = m); with the far
     # rings, both judged again on near − far
     costs = torch.zeros(len(grid), dtype=torch.float64)
+    fits = torch.zeros(len(grid), dtype=torch.float64)  # the ring residual alone (misfit)
     metal_costs = torch.zeros(len(grid), dtype=torch.float64)
     diff_costs = torch.zeros(len(grid), dtype=torch.float64)
     metal_diff_costs = torch.zeros(len(grid), dtype=torch.float64)
@@ -530,7 +577,7 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
             x[0] for x in _ring_costs(s_ring[None], ring_med, p_ring, usable, ring_floor, clipped_rings)
         )
         extra = floor + saturation_cost(level + s_pixels)
-        costs[i] = fit + extra
+        costs[i], fits[i] = fit + extra, fit
         unit_ring = s_ring / opts.f0
         m = (ring_med[usable] / unit_ring[usable].clamp_min(1e-12)).median().clamp(1e-4, 1.0)
         metal_extra = floor_cost(m * unit_ring, ring_scale) + saturation_cost(m * s_pixels / opts.f0)
@@ -548,14 +595,17 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
         costs, metal_costs = diff_costs, metal_diff_costs
         best, best_metal = int(torch.argmin(costs)), int(torch.argmin(metal_costs))
     if metal:
-        return float(grid[best_metal]), True, grid.numpy(), metal_costs.numpy(), bool(far_use.any()), None
+        r_metal = float(grid[best_metal])
+        return r_metal, True, grid.numpy(), metal_costs.numpy(), bool(far_use.any()), None, None
     r_best, relief = float(grid[best]), None
+    misfit = None if use_far else float(fits[best])  # near rings only ("Misfit")
     if opts.relief:
         rings = (ring_med, p_noflash, usable, ring_floor, clipped_rings)
         relief = _relief(s_rings, grid, rings)
         if relief is not None:
             r_best = relief["sharp"]
-    return r_best, False, grid.numpy(), costs.numpy(), bool(far_use.any()), relief
+            misfit = None if use_far else relief["fit"]
+    return r_best, False, grid.numpy(), costs.numpy(), bool(far_use.any()), relief, misfit
 
 
 def _ring_costs(model_lobes, ring_med, p_ring, usable, ring_floor, clipped_rings):
@@ -579,8 +629,8 @@ def _relief(s_rings, grid, rings) -> dict | None:
     roughnesses is tried, the sharper lobe with each share of RELIEF_WEIGHTS, and judged on the
     rings as every single lobe is (the saturation term is left out: it differs little between
     profiles and would drown the rings' difference). Returns ``sharp``, ``broad``, ``weight``,
-    ``gain``, ``single_cost`` when the best pair's cost is RELIEF_GAIN times below the best single
-    lobe's and RELIEF_MARGIN below it, else None."""
+    ``gain``, ``single_cost``, ``fit`` (the pair's ring residual) when the best pair's cost is
+    RELIEF_GAIN times below the best single lobe's and RELIEF_MARGIN below it, else None."""
     fit, floor, _ = _ring_costs(s_rings, *rings)
     single = float((fit + floor).min())
     i, j = torch.triu_indices(len(grid), len(grid), 1)
@@ -589,6 +639,7 @@ def _relief(s_rings, grid, rings) -> dict | None:
     fit, floor, _ = _ring_costs(mixed.reshape(-1, s_rings.shape[1]), *rings)
     costs = fit + floor
     k = int(torch.argmin(costs))
+    pair_fit = float(fit[k])
     gain = single / max(float(costs[k]), 1e-30)
     if gain < RELIEF_GAIN or single - float(costs[k]) < RELIEF_MARGIN:
         return None
@@ -599,6 +650,7 @@ def _relief(s_rings, grid, rings) -> dict | None:
         "weight": float(weights[w]),
         "gain": round(gain, 2),
         "single_cost": float(f"{single:.3g}"),
+        "fit": float(f"{pair_fit:.3g}"),
     }
 
 
@@ -736,7 +788,7 @@ def fit_flash(
         far = None if far is None else far.shrunk(f)
     else:
         small = (flash, noflash, saturated)
-    r_fit, metal, grid, costs, used_far, relief = _profile(
+    r_fit, metal, grid, costs, used_far, relief, misfit = _profile(
         *small, to_radiance, intensity, camera, clip, opts, far
     )
 
@@ -748,7 +800,8 @@ def fit_flash(
     f_only = signed.clamp_min(0.0)  # clamped for the diffuse maps
     cos = torch.from_numpy(view_directions(h, w, camera)[..., 2].astype(np.float32)).reshape(-1)
     shade = intensity * cos / (math.pi * (float(camera[2]) / cos) ** 2)  # G(x), unit albedo, flat
-    lobe = _LobeTable(cos, _footprint_cos(h, w, camera))
+    footprint = r_fit < FOOTPRINT_ROUGHNESS and max(h, w) <= FOOTPRINT_MAX_SIZE  # "The lobe per pixel"
+    lobe = _LobeTable(cos, _footprint_cos(h, w, camera) if footprint else None)
     if metal:
         unit_pix = lobe(r_fit, 1.0)  # g units per unit F0
         # F0 per channel: least squares of the unclamped image on the unit lobe, unsaturated pixels
@@ -792,4 +845,5 @@ def fit_flash(
         specular_rgb=np.full(3, opts.f0, np.float32),
         far_pair=used_far,
         relief=relief,
+        misfit=misfit,
     )

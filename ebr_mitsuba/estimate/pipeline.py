@@ -571,6 +571,12 @@ def run_estimate(
                 flash_fit = flash_fit.with_normals(fitted, camera=(0.0, 0.0, near_distance(inputs.fov)))
                 normal, source = fitted, "ebr estimate (shading normals, flash fit)"
             stage("shading normals", t0)
+        if flash_fit.misfits(fit_options.misfit_limit):
+            log(
+                f"the flash profile fits poorly (ring residual {flash_fit.misfit:.3g} > "
+                f"{fit_options.misfit_limit:g}): keeping the network's roughness"
+            )
+            flash_fit = flash_fit.with_network_roughness(np.asarray(maps.roughness))
         weight = fit_options.weight_for(max(flash_img.shape[:2]))
         flash_fit = flash_fit.with_network_diffuse(np.asarray(maps.diffuse), weight)
         maps = flash_fit.maps(normal, source)
