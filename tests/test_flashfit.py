@@ -215,11 +215,45 @@ def test_large_photos_are_fitted_on_an_area_averaged_copy():
 def test_network_weight_grows_above_the_size_threshold():
     from ebr_mitsuba.estimate.flashfit import NETWORK_WEIGHT_SIZE as N
 
-    opts = FlashFitConfig(network_weight=0.5)
+    opts = FlashFitConfig(network_weight=0.5, pattern_detail=False)
     assert opts.weight_for(N // 2) == opts.weight_for(N) == 0.5
     assert opts.weight_for(2 * N) == pytest.approx(0.75)
     assert opts.weight_for(4 * N) == pytest.approx(0.875)
     assert FlashFitConfig(network_weight=1.0).weight_for(8 * N) == 1.0
+    # with the pattern's detail shrunk the photo's share falls as 1 / √size
+    shrunk = FlashFitConfig(network_weight=0.5)
+    assert shrunk.weight_for(N) == 0.5
+    assert shrunk.weight_for(4 * N) == pytest.approx(0.75)
+    assert shrunk.weight_for(2 * N) == pytest.approx(1 - 0.5 / 2**0.5)
+
+
+def test_pattern_detail_is_shrunk_by_its_signal_share():
+    """The detail above NETWORK_WEIGHT_SIZE² of a pattern whose detail is signal s plus noise n,
+    the other pattern the same s plus independent noise: the gain is var(s) / (var(s) + var(n))
+    within 5 %, the shrunk pattern is nearer the truth than the raw one, the low frequencies are
+    kept, and two noise-free copies keep their detail whole."""
+    from ebr_mitsuba.estimate.flashfit import NETWORK_WEIGHT_SIZE as N
+    from ebr_mitsuba.estimate.flashfit import _detail_shrunk
+    from ebr_mitsuba.imageio import resize_area
+
+    rng = np.random.default_rng(0)
+    size = 4 * N
+    y, x = np.mgrid[0:size, 0:size] / size
+    low = (1.0 + 0.2 * np.sin(2 * np.pi * x)).astype(np.float32)
+    signal = rng.normal(0, 0.1, (size, size)).astype(np.float32)  # white: almost all above N²
+    truth = low + signal
+    flash = truth + rng.normal(0, 0.1, (size, size)).astype(np.float32)
+    noflash = truth + rng.normal(0, 0.1, (size, size)).astype(np.float32)
+    ok = np.ones((size, size), bool)
+    out = _detail_shrunk(flash, noflash, ok)
+    gain = np.std(out - resize_area(resize_area(out, (N, N)), (size, size))) / np.std(
+        flash - resize_area(resize_area(flash, (N, N)), (size, size))
+    )
+    assert gain == pytest.approx(0.5, rel=0.05)  # var(s) / (var(s) + var(n)) = 1/2
+    assert np.sqrt(np.mean((out - truth) ** 2)) < 0.8 * np.sqrt(np.mean((flash - truth) ** 2))
+    coarse = (N // 8, N // 8)  # the low frequencies kept (up to the bilinear upsampling's blur)
+    np.testing.assert_allclose(resize_area(out, coarse), resize_area(flash, coarse), atol=5e-3)
+    np.testing.assert_allclose(_detail_shrunk(truth, truth, ok), truth, atol=1e-5)
 
 
 def _near_far_capture(diffuse, specular, roughness, ambient=0.02, meter=0.9):

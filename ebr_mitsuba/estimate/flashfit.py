@@ -54,15 +54,14 @@ shading, the photo's pattern is exact in its texture; chosen on the validation s
 ``configs/data_real_val.toml`` (training materials and maps, not the test split): mean diffuse
 RMSE 0.0619 (photo pattern) / 0.0627 (scaled network map) / 0.0567 (the blend), with the trimmed
 level; with the clean level, weights 0.35 / 0.5 / 0.65 give 0.0534 / 0.0530 / 0.0538.
-Above 256² the photo pattern's share falls as 256 / size (:meth:`FlashFitConfig.weight_for`:
-0.25 at 512², 0.125 at 1024²): the photo's per-pixel noise grows as its pixels shrink while the
-network's map sharpens; on a 1024² 64-spp
-validation capture (``procedural:wood:5`` under ``procedural:8``, not a benchmark capture) the
-diffuse RMSE at 1024² was 0.0350 / 0.0255 / 0.0237 for weights 0.5 / 0.75 / 1 (0.0334 at 256²
-with 0.5). The flash photo is used for the pattern because it is the brighter, less quantised of
-the two shots; its low frequencies (flash fall-off, environment gradients) are what the local
-mean divides out, at the price of the albedo's own low frequencies (the level is global). Shading
-by the normals' relief stays in the pattern (it is read as albedo texture).
+Above 256² the photo's per-pixel noise grows as its pixels shrink while the network's map
+sharpens: the pattern's detail is shrunk by its signal share (``pattern_detail``, "Detail"
+below) and the photo pattern's share falls as √(256 / size) (:meth:`FlashFitConfig.weight_for`:
+0.35 at 512², 0.25 at 1024²; without ``pattern_detail`` as 256 / size, 0.25 and 0.125). The
+flash photo is used for the pattern because it is the brighter, less quantised of the two shots;
+its low frequencies (flash fall-off, environment gradients) are what the local mean divides out,
+at the price of the albedo's own low frequencies (the level is global). Shading by the normals'
+relief stays in the pattern (it is read as albedo texture).
 
 The no-flash rings. The ring statistics still carry the albedo texture's mean over each ring: a
 texture brighter at the frame's centre (or a rock whose lit faces happen to sit there) reads as
@@ -112,6 +111,18 @@ rings as above, and the roughness of that hypothesis is the one of lowest cost o
 differences (relative to the near level, plus the near saturation terms); the level, F₀ of a
 metal and the maps come from the near shots as before. The far flash intensity is the near one ×
 (far / near distance)² unless ``capture.json`` states both (``ebr estimate``).
+
+Detail. Above 256² the pattern's detail — the pattern minus itself area-averaged to 256² and
+upsampled — is mostly the photo's per-pixel noise (64 spp, or a sensor's). The no-flash shot's
+pattern (the same local-mean ratio) sees the same albedo detail under independent noise, so the
+covariance of the two details over the unsaturated pixels is the detail's signal power and
+``g = cov(d_flash, d_noflash) / var(d_flash)``, clipped to [0, 1], its signal share: the pattern
+becomes ``low + g · d_flash`` (a Wiener gain, one for the whole frame; ``pattern_detail``, default
+on). Relief shading that differs between the two lights counts as noise. Chosen on a 1024² 64-spp
+validation capture (``procedural:wood:5`` under ``procedural:8``, not a benchmark capture): the
+photo pattern's diffuse RMSE 0.0599 → 0.0426; blended with the network's map at weights 0.5 /
+0.75 / 0.875 / 1, 0.0346 / 0.0277 / 0.0273 / 0.0293 without the shrinkage and 0.0287 / 0.0267 /
+0.0274 / 0.0293 with it — hence the slower fall of the photo's share with it (0.75 at 1024²).
 
 Misfit. The kept profile's ring residual (mean squared, relative to the level: the fit term of
 its cost, the two-lobe pair's for a relief; ``FlashFit.misfit``, estimate.json's
@@ -201,7 +212,7 @@ import torch
 
 from ..errors import InputError
 from ..geometry import DEFAULT_FLASH_INTENSITY, FAR_DISTANCE, NEAR_DISTANCE, view_directions
-from ..imageio import box_mean
+from ..imageio import box_mean, resize_area, upsample_bilinear_fast
 from ..typedconfig import config, option
 
 __all__ = ["FarPair", "FlashFit", "FlashFitConfig", "fit_flash"]
@@ -245,10 +256,13 @@ class FlashFitConfig:
     def weight_for(self, size: int) -> float:
         """The network map's weight for a photo whose larger side is ``size`` pixels:
         ``network_weight`` up to NETWORK_WEIGHT_SIZE, above it the photo's share falls as
-        1 / size (its per-pixel noise grows as the pixels shrink; the network's map sharpens)."""
+        1 / size (its per-pixel noise grows as the pixels shrink; the network's map sharpens),
+        as 1 / √size with ``pattern_detail`` (the pattern's noise is already shrunk; module
+        docstring, "Detail")."""
         if size <= NETWORK_WEIGHT_SIZE:
             return self.network_weight
-        return 1.0 - (1.0 - self.network_weight) * NETWORK_WEIGHT_SIZE / size
+        share = NETWORK_WEIGHT_SIZE / size
+        return 1.0 - (1.0 - self.network_weight) * (share**0.5 if self.pattern_detail else share)
 
     pattern: float = option(
         0.125, "box of the pattern's local mean, fraction of the image side", above=0, maximum=1
@@ -273,6 +287,11 @@ class FlashFitConfig:
         "ring residual (mean squared, relative to the level) above which the fitted roughness is "
         'replaced by the network\'s map (module docstring, "Misfit"; inf: never)',
         minimum=0,
+    )
+    pattern_detail: bool = option(
+        True,
+        "above 256², the photo pattern's detail scaled by its signal share, read off its covariance "
+        'with the no-flash shot\'s (module docstring, "Detail")',
     )
     noflash_albedo: bool = option(
         True,
@@ -654,6 +673,30 @@ def _relief(s_rings, grid, rings) -> dict | None:
     }
 
 
+def _grey_pattern(img: np.ndarray, radius: int) -> np.ndarray:
+    """(H, W) float32: ``img`` (H, W, 3) over its local mean (a box of radius ``radius``), averaged
+    over the channels."""
+    pattern = np.zeros(img.shape[:2], np.float32)
+    for c in range(3):  # one channel at a time: box_mean's float64 sums are the peak memory
+        pattern += (img[..., c] / np.maximum(box_mean(img[..., c], radius), 1e-8)).astype(np.float32) / 3
+    return pattern
+
+
+def _detail_shrunk(pattern: np.ndarray, other: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """``pattern`` (H, W) with its detail above NETWORK_WEIGHT_SIZE² scaled by its signal share
+    (module docstring, "Detail"): ``low + g · (pattern − low)``, ``low`` the pattern area-averaged
+    to that size and upsampled, ``g = cov(d, d') / var(d)`` clipped to [0, 1] over the unsaturated
+    pixels ``ok`` (H, W), ``d'`` the same detail of ``other``, the no-flash shot's pattern."""
+    h, w = pattern.shape
+    f = NETWORK_WEIGHT_SIZE / max(h, w)
+    size = (max(1, round(h * f)), max(1, round(w * f)))
+    low = upsample_bilinear_fast(resize_area(pattern, size), (h, w))
+    d = (pattern - low)[ok].astype(np.float64)
+    d_other = (other - upsample_bilinear_fast(resize_area(other, size), (h, w)))[ok].astype(np.float64)
+    gain = float(np.clip(np.mean(d * d_other) / max(float(np.mean(d * d)), 1e-12), 0.0, 1.0))
+    return low + np.float32(gain) * (pattern - low)
+
+
 def _lobe(v: torch.Tensor, r: float, f0: float) -> torch.Tensor:
     """π f_s of the flat sample seen and lit along each co-located direction of ``v`` (N, 3),
     float64 (F₀ ``f0``, roughness ``r``)."""
@@ -829,9 +872,9 @@ def fit_flash(
     # the texture pattern: the flash photo minus the lobe, over its local mean (grey)
     img = (fl - spec_radiance / to_radiance).clamp_min(0.0).reshape(h, w, 3).numpy()
     radius = max(3, int(round(opts.pattern * max(h, w))) | 1) // 2  # an odd box of ≈ pattern × the side
-    pattern = np.zeros((h, w), np.float32)
-    for c in range(3):  # one channel at a time: box_mean's float64 sums are the peak memory
-        pattern += (img[..., c] / np.maximum(box_mean(img[..., c], radius), 1e-8)).astype(np.float32) / 3
+    pattern = _grey_pattern(img, radius)
+    if max(h, w) > NETWORK_WEIGHT_SIZE and opts.pattern_detail:  # module docstring, "Detail"
+        pattern = _detail_shrunk(pattern, _grey_pattern(noflash, radius), ~saturated)
     diffuse = np.clip(level_rgb.numpy()[None, None, :] * pattern[..., None], 0.0, 1.0)
     return FlashFit(
         roughness=r_fit,

@@ -47,7 +47,10 @@ Memory: a level takes about :data:`REFINE_BYTES_PER_PIXEL` bytes per pixel (para
 moments, the renders kept for the reverse pass); levels above :data:`REFINE_MEMORY` (1.5 GB:
 above 1580²) are not run, and the change found at the finest level run is carried to the working
 size like a coarser level's (a 2048² estimate refines at 256², 512² and 1024²; its 2048² level
-took 2.5 GB and the estimate 3.8 GB).
+took 2.5 GB and the estimate 3.8 GB). Each coarser level's buffers, and the full-size level's
+before the final re-renders, are handed back to the system as soon as they are dropped (Dr.Jit
+keeps freed buffers cached): the 2048² estimate with 200 steps peaked at 2.98 GB before, 2.35 GB
+after (``docs/bench/estimate.md`` measures it).
 
 Time budget (``seconds``): the clock is checked after every step; once past the budget the run
 reads the loss, keeps its best iterate, skips the remaining levels (the change so far is carried to
@@ -77,6 +80,7 @@ flash fit's values and let the photos move only the diffuse map and the normals.
 
 from __future__ import annotations
 
+import gc
 import math
 import time
 from collections.abc import Callable
@@ -393,6 +397,15 @@ def from_params(p: dict[str, np.ndarray], source: str = "refined") -> SVBRDF:
     )
 
 
+def _release_memory() -> None:
+    """Collect the dropped levels and hand their buffers back (:func:`.fullres.release_memory`):
+    the peak of a 2048² refinement is its full-size checks, not the sum of its levels."""
+    from .fullres import release_memory
+
+    gc.collect()
+    release_memory()
+
+
 def carry_change(net_coarse: SVBRDF, refined_coarse: SVBRDF, net_fine: SVBRDF) -> SVBRDF:
     """``net_fine`` plus the change ``refined_coarse − net_coarse`` upsampled (bilinear, in the
     unconstrained parameters): a coarse level's result carried to a finer level."""
@@ -402,9 +415,7 @@ def carry_change(net_coarse: SVBRDF, refined_coarse: SVBRDF, net_fine: SVBRDF) -
         return net_fine
     a, b, f = to_params(net_coarse), to_params(refined_coarse), to_params(net_fine)
     size = net_fine.shape
-    out = {
-        k: f[k] + upsample_bilinear_fast(b[k].astype(np.float64) - a[k], size).astype(np.float32) for k in f
-    }
+    out = {k: f[k] + upsample_bilinear_fast(b[k] - a[k], size).astype(np.float32) for k in f}
     return from_params(out)
 
 
@@ -841,6 +852,9 @@ def refine(
         if at_full and li > 0 and result.kept_step == 0 and result.best_loss >= baseline:
             result = _LevelResult(maps, env, result.history, -1, baseline, result.run, result.stopped)
         cur_maps, cur_env, net_prev = result.maps, result.env, net_here
+        if not at_full:  # a coarser level's Dr.Jit buffers: back to the system before the next
+            level = None
+            _release_memory()
         if result.stopped:
             stopped = True
             break
@@ -863,6 +877,9 @@ def refine(
     out_maps, out_env = (maps, env) if kept <= 0 else (result.maps, result.env)
     kept = max(kept, 0)
     history = sorted(dict(history).items()) if len(sizes) > 1 or not at_full else history
+    full.clear()  # the full-size level's Dr.Jit targets and parameters: freed before the re-renders
+    level = result = None
+    _release_memory()
     after, renders = rerender_errors(out_maps, out_env, targets, config.mode, config.spp, table)
     return RefineResult(
         out_maps,
