@@ -825,12 +825,11 @@ def test_alignment_refuses_only_confident_shifts(tmp_path):
     assert load_inputs(cap / "flash.exr", cap / "noflash.exr").alignment["near"]["confident"]
 
 
-def test_refinement_leaves_fixed_maps_alone():
-    """``fixed`` maps come back exactly as they went in while the free ones move and the photos'
-    error falls; fixing specular or roughness beside a basis prior is refused with the fix."""
-    from ebr_mitsuba.estimate.refine import RefineConfig, ShotTarget, refine
+def _refine_problem(n: int = 16):
+    """A 16² material's near shots as refinement targets and a start that is off on every map but
+    the normals (diffuse dimmed, specular 0.2, roughness 0.7)."""
+    from ebr_mitsuba.estimate.refine import ShotTarget
 
-    n = 16
     truth = _material(n)
     shots = [near_shot(True), near_shot(False)]
     photos = _render(truth, shots)
@@ -841,6 +840,15 @@ def test_refinement_leaves_fixed_maps_alone():
         specular=np.full((n, n, 3), 0.2, np.float32),
         roughness=np.full((n, n), 0.7, np.float32),
     )
+    return start, targets
+
+
+def test_refinement_leaves_fixed_maps_alone():
+    """``fixed`` maps come back exactly as they went in while the free ones move and the photos'
+    error falls; fixing specular or roughness beside a basis prior is refused with the fix."""
+    from ebr_mitsuba.estimate.refine import RefineConfig, refine
+
+    start, targets = _refine_problem()
     res = refine(start, ENV, targets, RefineConfig(steps=20, fixed=["specular", "roughness"]))
     assert res.after["mean"]["rmse"] < res.before["mean"]["rmse"]
     np.testing.assert_array_equal(res.maps.specular, start.specular)
@@ -856,19 +864,9 @@ def test_refinement_keeps_the_best_iterate():
     """A diverging refinement (learning rate 30) returns the maps it started from and says the loss
     rose; an oscillating one (lr 0.3, no decay) returns its best iterate, the one a shorter run
     ends on; a converging one keeps its last step."""
-    from ebr_mitsuba.estimate.refine import RefineConfig, ShotTarget, refine
+    from ebr_mitsuba.estimate.refine import RefineConfig, refine
 
-    n = 16
-    truth = _material(n)
-    shots = [near_shot(True), near_shot(False)]
-    photos = _render(truth, shots)
-    targets = [ShotTarget(s, photos[s.name], np.ones((n, n), bool)) for s in shots]
-    start = SVBRDF(
-        normal=truth.normal,
-        diffuse=np.clip(truth.diffuse * 0.6 + 0.1, 0, 1),
-        specular=np.full((n, n, 3), 0.2, np.float32),
-        roughness=np.full((n, n), 0.7, np.float32),
-    )
+    start, targets = _refine_problem()
 
     wild = refine(start, ENV, targets, RefineConfig(steps=10, lr=30.0, normal_lr=3.0, log_every=5))
     assert [s for s, _ in wild.history] == [0, 5, 10] and wild.history[-1][1] > wild.history[0][1]
