@@ -710,9 +710,13 @@ def _detail_shrunk(pattern: np.ndarray, other: np.ndarray, ok: np.ndarray) -> np
     h, w = pattern.shape
     f = NETWORK_WEIGHT_SIZE / max(h, w)
     size = (max(1, round(h * f)), max(1, round(w * f)))
-    low = upsample_bilinear_fast(resize_area(pattern, size), (h, w))
+
+    def low_of(x: np.ndarray) -> np.ndarray:
+        return upsample_bilinear_fast(resize_area(x, size), (h, w))
+
+    low = low_of(pattern)
     d = (pattern - low)[ok].astype(np.float64)
-    d_other = (other - upsample_bilinear_fast(resize_area(other, size), (h, w)))[ok].astype(np.float64)
+    d_other = (other - low_of(other))[ok].astype(np.float64)
     gain = float(np.clip(np.mean(d * d_other) / max(float(np.mean(d * d)), 1e-12), 0.0, 1.0))
     return low + np.float32(gain) * (pattern - low)
 

@@ -232,13 +232,16 @@ def tile_plan(
 
 
 def release_memory() -> None:
-    """Give freed memory back to the system: Dr.Jit's cache of freed buffers, and glibc's heap
-    (``malloc_trim``; after a 2048² pass glibc held about 1 GB of freed network activations)."""
+    """Give freed memory back to the system: objects only a reference cycle still holds (a dropped
+    refinement level), Dr.Jit's cache of freed buffers, and glibc's heap (``malloc_trim``; after a
+    2048² pass glibc held about 1 GB of freed network activations)."""
     import ctypes
     import ctypes.util
+    import gc
 
     import drjit as dr
 
+    gc.collect()
     dr.flush_malloc_cache()
     name = ctypes.util.find_library("c")
     if name and "libc.so" in name:

@@ -80,7 +80,6 @@ flash fit's values and let the photos move only the diffuse map and the normals.
 
 from __future__ import annotations
 
-import gc
 import math
 import time
 from collections.abc import Callable
@@ -95,6 +94,7 @@ from ..metrics import image_errors
 from ..sgenv import SGEnvironment
 from ..svbrdf import SVBRDF
 from ..typedconfig import config, option
+from .fullres import release_memory
 
 _EPS = 1e-3
 REFINE_BYTES_PER_PIXEL = 600  # measured: a 2048² level took 2.5 GB (parameters, Adam, AD graph)
@@ -395,15 +395,6 @@ def from_params(p: dict[str, np.ndarray], source: str = "refined") -> SVBRDF:
         roughness=_sigmoid(p["roughness"]),
         source=source,
     )
-
-
-def _release_memory() -> None:
-    """Collect the dropped levels and hand their buffers back (:func:`.fullres.release_memory`):
-    the peak of a 2048² refinement is its full-size checks, not the sum of its levels."""
-    from .fullres import release_memory
-
-    gc.collect()
-    release_memory()
 
 
 def carry_change(net_coarse: SVBRDF, refined_coarse: SVBRDF, net_fine: SVBRDF) -> SVBRDF:
@@ -854,7 +845,7 @@ def refine(
         cur_maps, cur_env, net_prev = result.maps, result.env, net_here
         if not at_full:  # a coarser level's Dr.Jit buffers: back to the system before the next
             level = None
-            _release_memory()
+            release_memory()
         if result.stopped:
             stopped = True
             break
@@ -879,7 +870,7 @@ def refine(
     history = sorted(dict(history).items()) if len(sizes) > 1 or not at_full else history
     full.clear()  # the full-size level's Dr.Jit targets and parameters: freed before the re-renders
     level = result = None
-    _release_memory()
+    release_memory()
     after, renders = rerender_errors(out_maps, out_env, targets, config.mode, config.spp, table)
     return RefineResult(
         out_maps,
