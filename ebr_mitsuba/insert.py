@@ -24,6 +24,19 @@ integrator           ``path``, ``max_depth`` 8 (object ↔ plane inter-reflectio
                      pixels of an oblique view are black)
 ===================  ==========================================================================
 
+Background (``background``, default ``photo``). Into an estimate of a flash / no-flash pair, seen
+from the estimate's own camera (``elevation`` 90), the object is composited into the no-flash
+photo by differential rendering (Debevec 1998): the scene is rendered with and without the
+object under the estimated light, the object's pixels (:func:`object_coverage`) are taken from
+the render, and every other pixel is the photo times the render's ratio with / without the
+object — the shadow and the light the object throws back, applied to what the camera saw
+(:func:`differential`). The plate then keeps the photo's own texture and light wherever the
+object leaves it alone, and the estimate is judged where the insertion changes the picture.
+``render`` (and any other camera, a multi-view estimate, a capture directory) renders the whole
+frame. The photo is the one the estimate fitted, on the sample grid and in its radiance units:
+``rerender/noflash.exr`` − ``residual/noflash.exr`` (the residual is re-render − photo,
+:mod:`ebr_mitsuba.estimate.outputs`).
+
 The object's materials (:data:`MATERIALS`) are Mitsuba's own BSDFs. The render is split into
 passes of at most :data:`PASS_SPP` samples (each its own seed, derived from ``seed`` as
 :func:`ebr_mitsuba.capture.shot_seed` does) averaged with their sample counts as weights, so
@@ -105,6 +118,12 @@ DEFAULT_SEED = 0
 DEFAULT_MESH_UP = "y"
 DEFAULT_MAX_RES = 512  # the default resolution is the maps' one, at most this
 MAX_DEPTH = 8
+BACKGROUNDS = ("photo", "render")
+DEFAULT_BACKGROUND = "photo"
+#: Plate pixels whose render without the object is below this share of its mean luminance take
+#: the render's difference instead of its ratio (a ratio of two near-zero renders is noise).
+RATIO_FLOOR = 0.01
+COVERAGE_SPP = 16  # samples per pixel of the depth passes that find the object's pixels
 PASS_SPP = 16
 MIN_RES, MAX_RES = 8, 4096
 MAX_SPP = 1 << 16
@@ -162,6 +181,13 @@ class InsertConfig:
         metavar="DEG",
         fix="90 is the estimate's camera, straight above",
     )
+    background: str = option(
+        DEFAULT_BACKGROUND,
+        "photo: composite into the estimate's no-flash photo (differential rendering, the "
+        "estimate's camera); render: render the whole frame",
+        choices=BACKGROUNDS,
+        metavar="B",
+    )
     seed: int = option(DEFAULT_SEED, "sampler seed", minimum=0, below=2**32, metavar="S")
     truth_seed: int | None = option(
         None,
@@ -203,6 +229,7 @@ class InsertConfig:
             "width": self.width,
             "position": list(self.position),
             "elevation": self.elevation,
+            "background": self.background,
             "seed": self.seed,
             "truth_seed": self.seed if self.truth_seed is None else self.truth_seed,
             **({"mesh_up": self.mesh_up} if self.object not in OBJECTS else {}),
@@ -218,6 +245,7 @@ INSERT_FLAGS = (
     "scale",
     "position",
     "elevation",
+    "background",
     "seed",
     "truth_seed",
     "mesh_up",
@@ -231,7 +259,9 @@ INSERT_FLAGS = (
 class Plate:
     """What the object is inserted into: the sample's maps, its lighting and the camera's field
     of view. ``emitter`` builds the Mitsuba emitter dict (a fresh one per scene: a dict's tensors
-    are consumed by one ``mi.load_dict``); ``kind`` is ``estimate`` or ``capture``."""
+    are consumed by one ``mi.load_dict``); ``kind`` is ``estimate`` or ``capture``; ``photo``
+    the (H, W, 3) no-flash photo the estimate fitted, on the sample grid in the plate's radiance
+    units (None: no such photo; the frame is rendered whole)."""
 
     source: Path
     kind: str
@@ -239,6 +269,7 @@ class Plate:
     fov: float
     emitter: Callable[[], dict] = field(repr=False)
     env: dict = field(default_factory=dict)
+    photo: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     @property
     def resolution(self) -> int:
@@ -327,7 +358,32 @@ def load_estimate(directory) -> Plate:
     env = SGEnvironment.load(env_path)
     maps = _load_maps(directory / "maps", "re-run `ebr estimate` to write the maps")
     emitter, env_record = _sg_plate_env(env, env_path)
-    return Plate(directory, "estimate", maps, fov, emitter, env_record)
+    return Plate(directory, "estimate", maps, fov, emitter, env_record, estimate_photo(directory))
+
+
+def estimate_photo(directory) -> np.ndarray | None:
+    """The no-flash photo an estimate fitted, (H, W, 3) float32 in its radiance units:
+    ``rerender/noflash.exr`` − ``residual/noflash.exr``; None when the estimate has no no-flash
+    shot (flash-only, five-light, multi-view). A present but unreadable pair is an InputError."""
+    from .imageio import read_exr
+
+    directory = Path(directory)
+    paths = [directory / "rerender" / "noflash.exr", directory / "residual" / "noflash.exr"]
+    if not all(path.is_file() for path in paths):
+        return None
+    try:
+        rerender, residual = (np.asarray(read_exr(path), np.float32)[..., :3] for path in paths)
+    except Exception as exc:  # an EXR reader error of any kind: one line, the fix
+        raise InputError(
+            f"{directory}: unreadable no-flash re-render or residual ({exc}); re-run `ebr estimate` "
+            f"or use --background render"
+        ) from None
+    if rerender.shape != residual.shape or rerender.ndim != 3:
+        raise InputError(
+            f"{directory}: rerender/noflash.exr is {rerender.shape} but residual/noflash.exr "
+            f"{residual.shape}; re-run `ebr estimate` or use --background render"
+        )
+    return rerender - residual
 
 
 def _capture_fov(meta: dict, meta_path: Path) -> float:
@@ -531,6 +587,94 @@ def render(
     return image
 
 
+def object_coverage(
+    plate: Plate, cfg: InsertConfig, res: int, shape: dict | None, fov: float, spp: int = COVERAGE_SPP
+) -> np.ndarray:
+    """(res, res, 1) float32, 1 where a camera ray of the insertion meets the object before the
+    plane (any of the pixel's ``spp`` rays: its mean depth differs from the plane's), else 0."""
+    import mitsuba as mi
+
+    depths = []
+    for with_object in (True, False):
+        desc = scene_dict(plate, cfg, res, with_object=with_object, shape=shape, fov=fov)
+        desc["integrator"] = {"type": "aov", "aovs": "depth:depth"}
+        depths.append(np.array(mi.render(mi.load_dict(desc), spp=spp, seed=0), np.float32)[..., 0])
+    scale = max(float(np.max(np.abs(depths[1]))), 1e-6)
+    return (np.abs(depths[0] - depths[1]) > 1e-5 * scale).astype(np.float32)[..., None]
+
+
+def differential(
+    photo: np.ndarray, with_object: np.ndarray, without_object: np.ndarray, coverage: np.ndarray
+) -> np.ndarray:
+    """The object composited into ``photo`` (module docstring, "Background"); every argument is
+    (H, W, 3) radiance on one grid but ``coverage`` (H, W, 1) in [0, 1]. Plate pixels are the photo
+    × with / without (the object's shadow and inter-reflection as a change of the light the
+    camera saw); where the render without the object is darker than :data:`RATIO_FLOOR` × its mean
+    luminance, the photo + with − without; object pixels are the render with the object."""
+    from .colour import LUMINANCE
+
+    photo = np.asarray(photo, np.float32)
+    lum = without_object @ np.asarray(LUMINANCE, np.float32)
+    floor = RATIO_FLOOR * max(float(lum.mean()), 1e-12)
+    bright = (lum > floor)[..., None]
+    ratio = with_object / np.where(bright, without_object, 1.0)
+    plate = np.where(bright, photo * ratio, photo + with_object - without_object)
+    out = coverage * with_object + (1.0 - coverage) * np.maximum(plate, 0.0)
+    return out.astype(np.float32)
+
+
+def photo_background(plate: Plate, cfg: InsertConfig, res: int) -> np.ndarray | None:
+    """The photo the insertion is composited into at ``res``², or None when the frame is rendered
+    whole (``--background render``, another camera than the estimate's, no no-flash photo)."""
+    from .imageio import resize_area, upsample_bilinear_fast
+
+    if cfg.background != "photo" or cfg.elevation < 90.0 or plate.photo is None:
+        return None
+    photo = plate.photo
+    if photo.shape[:2] == (res, res):
+        return photo
+    if photo.shape[0] > res:
+        return resize_area(photo, (res, res))
+    return upsample_bilinear_fast(photo, (res, res)).astype(np.float32)
+
+
+def insertion_images(
+    plate: Plate, cfg: InsertConfig, res: int, shape: dict | None, truth: Plate | None = None, bar=None
+) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+    """The insertion of ``cfg``'s object (``shape``: its prepared :func:`object_dict`) into
+    ``plate`` at ``res``², and into ``truth`` when given: ``({"insert": the insertion (composited
+    into the plate's photo where :func:`photo_background` allows, else rendered whole), "render":
+    the whole-frame render, ["truth": the truth's render]}, seconds per render)``. ``bar``: a
+    tqdm bar advanced by each pass's samples."""
+    photo = photo_background(plate, cfg, res)
+    renders = [("render", plate, cfg.seed, True)]
+    if photo is not None and shape is not None:
+        renders.append(("render, no object", plate, cfg.seed, False))
+    if truth is not None:
+        renders.append(("truth", truth, cfg.seed if cfg.truth_seed is None else cfg.truth_seed, True))
+    images, seconds = {}, {}
+    for key, p, seed, with_object in renders:
+        if bar is not None:
+            bar.set_postfix_str(key)
+        t = time.perf_counter()
+        obj = dict(shape) if shape and with_object else None
+        desc = scene_dict(p, cfg, res, with_object, shape=obj, fov=plate.fov)
+        images[key] = render(desc, res, cfg.spp, seed, tick=None if bar is None else bar.update)
+        seconds[key] = round(time.perf_counter() - t, 3)
+    if photo is None:
+        images["insert"] = images["render"]
+    elif shape is None:  # nothing inserted: the photo itself
+        images["insert"] = photo
+    else:
+        if bar is not None:
+            bar.set_postfix_str("composite")
+        t = time.perf_counter()
+        coverage = object_coverage(plate, cfg, res, dict(shape), plate.fov)
+        images["insert"] = differential(photo, images["render"], images.pop("render, no object"), coverage)
+        seconds["composite"] = round(time.perf_counter() - t, 3)
+    return images, seconds
+
+
 # -- outputs ---------------------------------------------------------------------------------------
 
 
@@ -614,13 +758,10 @@ def run_insert(estimate_dir, out, cfg: InsertConfig, truth_dir=None, progress: b
     truth = load_capture(truth_dir) if truth_dir is not None else None
     res = cfg.res or min(plate.resolution, DEFAULT_MAX_RES)
     shape = object_dict(cfg)  # loads (and checks) a mesh file once
-    renders = [("insert", plate, cfg.seed)]
-    if truth is not None:
-        renders.append(("truth", truth, cfg.seed if cfg.truth_seed is None else cfg.truth_seed))
-
-    images, seconds = {}, {}
+    photo = photo_background(plate, cfg, res)
+    renders = 1 + (truth is not None) + (photo is not None and shape is not None)
     bar = tqdm(
-        total=cfg.spp * len(renders),
+        total=cfg.spp * renders,
         desc="insert",
         unit="spp",
         disable=None if progress else True,
@@ -628,14 +769,10 @@ def run_insert(estimate_dir, out, cfg: InsertConfig, truth_dir=None, progress: b
         dynamic_ncols=True,
     )
     try:
-        for key, p, seed in renders:
-            bar.set_postfix_str(key)
-            t = time.perf_counter()
-            desc = scene_dict(p, cfg, res, shape=dict(shape) if shape else None, fov=plate.fov)
-            images[key] = render(desc, res, cfg.spp, seed, tick=bar.update)
-            seconds[key] = round(time.perf_counter() - t, 3)
+        images, seconds = insertion_images(plate, cfg, res, shape, truth, bar)
     finally:
         bar.close()
+    rendered = images.pop("render")
     gain = exposure(images.get("truth", images["insert"]))
     files = write_outputs(paths, images, gain)
     summary = {
@@ -652,6 +789,7 @@ def run_insert(estimate_dir, out, cfg: InsertConfig, truth_dir=None, progress: b
         "fov": plate.fov,
         "camera": list(camera_shot(plate.fov, cfg.elevation).camera),
         "integrator": {"type": "path", "max_depth": MAX_DEPTH, "hide_emitters": True},
+        "composited": photo is not None,
         "preview_exposure": gain,
         "render_seconds": seconds,
         "renderer": describe(),
@@ -670,6 +808,9 @@ def run_insert(estimate_dir, out, cfg: InsertConfig, truth_dir=None, progress: b
             ]
         summary["rmse"] = rmse(images["insert"], images["truth"])
         summary["rel_rmse"] = rel_rmse(images["insert"], images["truth"])
+        if photo is not None:  # the same insertion rendered whole, for comparison
+            summary["render_rmse"] = rmse(rendered, images["truth"])
+            summary["render_rel_rmse"] = rel_rmse(rendered, images["truth"])
     summary["seconds"] = round(time.perf_counter() - t0, 3)
     return summary
 
@@ -680,10 +821,15 @@ __all__ = [
     "MATERIALS",
     "OBJECTS",
     "camera_shot",
+    "differential",
+    "estimate_photo",
+    "insertion_images",
     "load_capture",
     "load_estimate",
+    "object_coverage",
     "object_dict",
     "output_paths",
+    "photo_background",
     "render",
     "run_insert",
     "scene_dict",

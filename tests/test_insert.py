@@ -14,6 +14,7 @@ import pytest
 
 from ebr_mitsuba import cli
 from ebr_mitsuba.imageio import read_exr
+from ebr_mitsuba.insert import differential, estimate_photo
 from ebr_mitsuba.sgenv import SGEnvironment
 from ebr_mitsuba.svbrdf import SVBRDF
 
@@ -234,6 +235,68 @@ def test_on_the_output_of_ebr_estimate(tmp_path, capsys, monkeypatch):
     assert summary["estimate"]["kind"] == "estimate" and summary["fov"] == 45.0
     assert np.isfinite(summary["rmse"]) and summary["rmse"] > 0
     assert all(Path(f).is_file() for f in summary["files"])
+    # composited into the no-flash photo by default; the whole-frame render's error beside it
+    assert summary["composited"] and summary["background"] == "photo"
+    assert np.isfinite(summary["render_rmse"]) and summary["render_rmse"] != summary["rmse"]
+    photo = estimate_photo(est)
+    assert photo.shape == (32, 32, 3)
+    # the photo is the shot the estimate read (capture units; ebr capture's exposure is 1)
+    assert np.allclose(photo, read_exr(cap / "noflash.exr"), rtol=1e-4, atol=1e-5)
+    images = {}
+    for extra in ([], ["--object", "none"], ["--background", "render"]):
+        out = tmp_path / f"ins{len(images)}.exr"
+        code, stdout, err = run_cli(capsys, "insert", est, "--out", out, "--spp", 4, "--json", *extra)
+        assert code == 0, err
+        images[" ".join(extra)] = (read_exr(out), json.loads(stdout))
+    assert np.allclose(images["--object none"][0], photo)  # nothing inserted: the photo itself
+    assert not images["--background render"][1]["composited"]
+    composite, rendered = images[""][0], images["--background render"][0]
+    # away from the sphere and its shadow (the sun is at +x: the shadow falls towards -x) the
+    # composite is the photo; the rendered frame is the estimate's plate instead
+    assert _box(composite, 0.7, 1.0, 0.7, 1.0) == pytest.approx(_box(photo, 0.7, 1.0, 0.7, 1.0), rel=0.03)
+    centre = (-0.1, 0.1, -0.1, 0.1)  # on the sphere: the render with the object
+    assert _box(composite, *centre) == pytest.approx(_box(rendered, *centre), rel=1e-6)
+
+
+def test_differential_composite():
+    """Object pixels come from the render with the object; plate pixels are the photo times the
+    render's ratio with / without the object (1 where the object changes nothing, the shadow's
+    fraction in its shadow), or photo + difference where the plate render is dark."""
+    rng = np.random.default_rng(0)
+    photo = rng.uniform(0.2, 0.8, (8, 8, 3)).astype(np.float32)
+    without = rng.uniform(0.3, 0.6, (8, 8, 3)).astype(np.float32)
+    with_object = without.copy()
+    with_object[:2] *= 0.25  # a shadow over the first two rows
+    with_object[4:6, 4:6] = 0.9  # the object
+    without[6:, :] = 0.0  # a plate render black in the last two rows ...
+    with_object[6:, :] = 0.05  # ... where the object throws light
+    coverage = np.zeros((8, 8, 1), np.float32)
+    coverage[4:6, 4:6] = 1.0
+    out = differential(photo, with_object, without, coverage)
+    assert np.allclose(out[:2], 0.25 * photo[:2], rtol=1e-6)
+    assert np.allclose(out[2:4], photo[2:4], rtol=1e-6)
+    assert np.allclose(out[4:6, 4:6], 0.9)
+    assert np.allclose(out[6:], photo[6:] + 0.05, rtol=1e-6)
+    assert out.dtype == np.float32 and (out >= 0).all()
+
+
+def test_object_coverage_is_the_spheres_silhouette(sun_capture):
+    """The default sphere (radius 1/3, centred, on the plane) seen from straight above covers its
+    silhouette: a disc of radius D tan(asin(r / (D − r))) on the plane (D the camera's height),
+    whole pixels (any ray meeting the sphere counts), so between the disc and the disc grown by
+    a pixel's diagonal; none of the corners."""
+    from ebr_mitsuba.insert import InsertConfig, load_capture, object_coverage, object_dict
+    from ebr_mitsuba.variant import ensure_variant
+
+    ensure_variant()
+    plate = load_capture(sun_capture)
+    cfg = InsertConfig()
+    cov = object_coverage(plate, cfg, 32, object_dict(cfg), plate.fov)[..., 0]
+    assert cov.shape == (32, 32) and set(np.unique(cov)) <= {0.0, 1.0}
+    assert cov[14:18, 14:18].all() and not cov[:6, :6].any() and not cov[-6:, -6:].any()
+    height, r, pixel = 1 / np.tan(np.radians(plate.fov) / 2), 1 / 3, 2 / 32
+    silhouette = height * np.tan(np.arcsin(r / (height - r)))
+    assert np.pi * silhouette**2 / 4 < cov.mean() < np.pi * (silhouette + pixel * 2**0.5) ** 2 / 4
 
 
 def _bad_cases(tmp: Path, cap: Path) -> list[tuple[list, str]]:
@@ -268,6 +331,7 @@ def _bad_cases(tmp: Path, cap: Path) -> list[tuple[list, str]]:
         ([cap, *out, "--elevation", "5"], "--elevation"),
         ([cap, *out, "--seed", "-1"], "--seed"),
         ([cap, *out, "--mesh-up", "x"], "--mesh-up"),
+        ([cap, *out, "--background", "sky"], "--background"),
         ([cap, "--out", tmp / "o.txt"], "o.txt"),
         ([cap, *out, "--truth", not_est], "capture.json"),
         ([cap, *out, "--truth", dark], "environment"),

@@ -1,6 +1,6 @@
 """Measure speed against error and write the tables and plots (docs/bench/ in a checkout).
 
-  ebr bench [renderer|generate|extract-sg|estimate|sizes|models|fivelight|mair|all]
+  ebr bench [renderer|generate|extract-sg|estimate|sizes|models|fivelight|mair|insert|all]
             [--out DIR] [--quick] [--json]
 
 Each benchmark writes ``OUT/<name>.md`` (a Markdown table with the reference it was measured
@@ -30,7 +30,10 @@ against, and the PNG plots it links) and returns its path:
   view only) on the 3×3 captures of the test split, their per-pixel lighting error, an object
   insertion against the truth, beside the EBREnv model on the same materials (writes
   ``mair_eval.md``; needs ``EBR_MAIR_DATA`` and ``EBR_MAIR_RUNS``; optionally ``EBR_TRAIN_DATA``,
-  ``EBR_SPLIT_DATA``).
+  ``EBR_SPLIT_DATA``);
+* ``insert``: ``ebr insert``'s sphere in estimates of synthetic captures (and, with
+  ``EBR_SPLIT_DATA``, of test-split samples) against the truth and its noise floor, composited
+  into the photo and rendered whole (writes ``insert.md``, a picture per capture and a plot).
 
 Default ``--out``: inside a checkout of ebr-mitsuba (the current directory or one above it holds
 the project's ``pyproject.toml``) the checkout's ``docs/bench`` (``docs`` for ``models``,
@@ -63,7 +66,17 @@ HELP = "measure speed against error; write the benchmark pages (docs/bench/*.md 
 
 # Every benchmark name the toolkit plans; `available()` is the subset this version has (a module in
 # ebr_mitsuba.bench). Only those are listed in --help.
-BENCHMARKS = ("renderer", "generate", "extract-sg", "estimate", "sizes", "models", "fivelight", "mair")
+BENCHMARKS = (
+    "renderer",
+    "generate",
+    "extract-sg",
+    "estimate",
+    "sizes",
+    "models",
+    "fivelight",
+    "mair",
+    "insert",
+)
 OUTSIDE_CHECKOUT = Path("ebr-bench")
 PROJECT = "ebr-mitsuba"
 

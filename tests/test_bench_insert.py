@@ -1,0 +1,27 @@
+"""``ebr bench insert --quick``: a synthetic capture estimated by the shipped model, its insertion
+composited and rendered whole against the truth and the truth's noise floor (48², 16 spp:
+seconds)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from ebr_mitsuba.bench import insert as bench
+
+
+def test_quick_page_measures_composite_render_and_floor(tmp_path, monkeypatch):
+    monkeypatch.delenv("EBR_SPLIT_DATA", raising=False)
+    path = bench.run(tmp_path, quick=True)
+    page = path.read_text()
+    assert path.name == "insert.md" and "Quick mode" in page
+    record = json.loads((tmp_path / "insert.json").read_text())
+    (row,) = record["rows"]  # quick: one capture, the diffuse sphere
+    assert row["group"] == "synthetic" and row["material"] == "diffuse" and row["composited"]
+    assert row["floor"] > 0 and row["composite"] > 0 and row["render"] > 0
+    assert row["composite"] != row["render"]
+    assert row["ratio"] == pytest.approx(row["composite"] / row["floor"])
+    assert f"**{row['ratio']:.1f}×**" in page and f"{row['render_ratio']:.1f}×" in page
+    for name in ("insert_ratios.png", "insert_0.png"):
+        assert (tmp_path / name).is_file() and f"]({name})" in page
