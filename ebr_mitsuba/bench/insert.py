@@ -51,20 +51,25 @@ def _log(msg: str) -> None:
 
 
 def measure(plate, truth, material: str, res: int, spp: int) -> dict:
-    """One insertion: RMSE of the composite and of the whole-frame render against the truth, the
-    truth-vs-truth noise floor, and the composite's picture (estimate | truth | difference)."""
+    """One insertion of ``material``'s default object into ``plate`` and into ``truth`` (both
+    :class:`~ebr_mitsuba.insert.Plate`): RMSE of the insertion (composited where the plate has a
+    photo) and of the whole-frame render against the truth's, the truth-vs-truth noise floor
+    (another seed), the insertion's and the floor's relative RMSE, and the insertion's picture
+    (estimate | truth | difference, at the truth's exposure)."""
     from ..insert import InsertConfig, exposure, insertion_images, object_dict, side_by_side
-    from ..metrics import rmse
+    from ..metrics import rel_rmse, rmse
 
     cfg = InsertConfig(material=material, spp=spp, res=res)
     shape = object_dict(cfg)
     images, _ = insertion_images(plate, cfg, res, shape, truth)
-    floor_images, _ = insertion_images(truth, replace(cfg, truth_seed=1), res, shape, truth)
-    floor = rmse(floor_images["render"], floor_images["truth"])
+    again = insertion_images(truth, replace(cfg, seed=1), res, shape)[0]["render"]  # another seed
+    floor = rmse(again, images["truth"])
     row = {
         "composite": rmse(images["insert"], images["truth"]),
         "render": rmse(images["render"], images["truth"]),
         "floor": floor,
+        "composite_rel": rel_rmse(images["insert"], images["truth"]),
+        "floor_rel": rel_rmse(again, images["truth"]),
         "composited": images["insert"] is not images["render"],
     }
     row["ratio"] = row["composite"] / floor

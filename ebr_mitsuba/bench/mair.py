@@ -194,11 +194,10 @@ def insertions(estimates: list, truths: list, samples: list[Path], res: int, spp
     """The default insertion (module docstring) into each estimate and its truth: per sample the
     relative RMSE of the estimate's against the truth's, the truth's noise floor (seed 1 against
     seed 0) and the pictures; skipped for dark samples."""
-    from ..insert import InsertConfig, Plate, exposure, render, scene_dict, side_by_side
-    from ..metrics import rel_rmse
+    from ..insert import Plate
     from ..scene import sg_emitter_dict
+    from .insert import measure
 
-    cfg = InsertConfig(spp=spp, res=res)
     rows, pictures = [], []
     for est, truth, sample in zip(estimates, truths, samples):
         made = truth_emitter(sample)
@@ -207,24 +206,18 @@ def insertions(estimates: list, truths: list, samples: list[Path], res: int, spp
         emitter, described = made
         fov = est.shots[len(est.shots) // 2].fov
         env = est.lighting.pixel_environment()
-        plates = {
-            "estimate": Plate(sample, "estimate", est.maps, fov, lambda env=env: sg_emitter_dict(env)),
-            "truth": Plate(sample, "capture", truth, fov, emitter),
-        }
+        plate = Plate(sample, "estimate", est.maps, fov, lambda env=env: sg_emitter_dict(env))
         log(f"[bench mair] insertion into {sample.name} ({res}², {spp} spp, three renders)")
-        images = {
-            key: render(scene_dict(p, cfg, res, fov=fov), res, spp, seed)
-            for key, p, seed in (
-                ("estimate", plates["estimate"], 0),
-                ("truth", plates["truth"], 0),
-                ("truth, seed 1", plates["truth"], 1),
-            )
-        }
-        err = rel_rmse(images["estimate"], images["truth"])
-        floor = rel_rmse(images["truth, seed 1"], images["truth"])
-        rows.append({"sample": sample.name, "env": described, "rel_rmse": err, "noise_floor": floor})
-        gain = exposure(images["truth"])
-        pictures.append(np.clip(side_by_side(images["estimate"], images["truth"], gain), 0, None))
+        r = measure(plate, Plate(sample, "capture", truth, fov, emitter), "diffuse", res, spp)
+        rows.append(
+            {
+                "sample": sample.name,
+                "env": described,
+                "rel_rmse": r["composite_rel"],
+                "noise_floor": r["floor_rel"],
+            }
+        )
+        pictures.append(r["picture"])
     return {"rows": rows, "pictures": pictures, "res": res, "spp": spp}
 
 
