@@ -112,6 +112,31 @@ def test_texture_pattern_beats_the_constant():
     assert err < 0.3 * const, (err, const)
 
 
+def test_low_frequencies_of_the_albedo_are_kept():
+    """Two planks, albedo 0.2 and 0.45 side by side (larger than the pattern's box), with a fine
+    checker on both: over its local mean the photo loses the planks (both come out at the
+    level); with ``pattern_lows`` the flash-only ratio puts them back, per channel."""
+    yy, xx = np.mgrid[0:RES, 0:RES]
+    planks = np.where(xx < RES // 2, 0.2, 0.45).astype(np.float32)
+    checker = 1.0 + 0.2 * (((yy // 4 + xx // 4) % 2) - 0.5)
+    albedo = np.stack([planks * checker, 0.8 * planks * checker, 0.6 * planks * checker], -1)
+    flash, noflash, exposure = _capture(albedo, (0.04,) * 3, 0.5, noise=0.002)
+    err = {}
+    for lows in (True, False):
+        fit = fit_flash(flash, noflash, to_radiance=1 / exposure, options=FlashFitConfig(pattern_lows=lows))
+        err[lows] = float(np.sqrt(np.mean((fit.diffuse - albedo) ** 2)))
+        left, right = (
+            fit.diffuse[:, 8 : RES // 2 - 24].mean((0, 1)),
+            fit.diffuse[:, RES // 2 + 24 : -8].mean((0, 1)),
+        )
+        if lows:  # each plank's colour, within 10 %
+            np.testing.assert_allclose(left, albedo[:, 8 : RES // 2 - 24].mean((0, 1)), rtol=0.1)
+            np.testing.assert_allclose(right, albedo[:, RES // 2 + 24 : -8].mean((0, 1)), rtol=0.1)
+        else:  # the planks averaged away
+            assert np.all(right < 1.3 * left), (left, right)
+    assert err[True] < 0.5 * err[False], err
+
+
 def test_level_of_a_skewed_texture():
     """Bricks with bright mortar in a tenth of the pixels: the clean level is the albedo's mean per
     channel, the trimmed mean (which cuts the mortar as the top decile) falls short of it."""

@@ -47,21 +47,39 @@ a brick wall's bright mortar is the top decile it cuts, so the level came out 7�
 channel (redder than the wall). On the validation captures (``configs/data_real_val.toml``, 24)
 the diffuse RMSE went from 0.0565 (trimmed) to 0.0530 (clean), on the 24 near-far validation
 captures from 0.0620 to 0.0610; the plain mean over all unsaturated pixels gave 0.0533 (it
-keeps the residue of a glossy tile's highlight). ``ebr estimate`` then blends it half and half
-(``network_weight``) with the network's diffuse map scaled per channel to the fitted level
-(:meth:`FlashFit.with_network_diffuse`): the network's map is denoised and free of the photo's
-shading, the photo's pattern is exact in its texture; chosen on the validation set
-``configs/data_real_val.toml`` (training materials and maps, not the test split): mean diffuse
-RMSE 0.0619 (photo pattern) / 0.0627 (scaled network map) / 0.0567 (the blend), with the trimmed
-level; with the clean level, weights 0.35 / 0.5 / 0.65 give 0.0534 / 0.0530 / 0.0538.
+keeps the residue of a glossy tile's highlight). The pattern's low frequencies are then put back
+(``pattern_lows``, "Low frequencies" below): ``ρ(x) = L_c · B_c(x) · P(x)``. ``ebr estimate``
+blends this map with the network's diffuse map scaled per channel to the fitted level
+(``network_weight``, the network's share; :meth:`FlashFit.with_network_diffuse`): the network's
+map is denoised and free of the photo's shading, the photo's pattern is exact in its texture;
+chosen on the validation set ``configs/data_real_val.toml`` (training materials and maps, not
+the test split): mean diffuse RMSE 0.0619 (photo pattern) / 0.0627 (scaled network map) / 0.0567
+(the blend), with the trimmed level; with the clean level, weights 0.35 / 0.5 / 0.65 gave 0.0534 /
+0.0530 / 0.0538 (the default was 0.5 until 2026-12-06; with the low frequencies put back, see
+below, 0.6).
 Above 256² the photo's per-pixel noise grows as its pixels shrink while the network's map
 sharpens: the pattern's detail is shrunk by its signal share (``pattern_detail``, "Detail"
 below) and the photo pattern's share falls as √(256 / size) (:meth:`FlashFitConfig.weight_for`:
-0.35 at 512², 0.25 at 1024²; without ``pattern_detail`` as 256 / size, 0.25 and 0.125). The
+0.28 at 512², 0.2 at 1024²; without ``pattern_detail`` as 256 / size, 0.2 and 0.1). The
 flash photo is used for the pattern because it is the brighter, less quantised of the two shots;
 its low frequencies (flash fall-off, environment gradients) are what the local mean divides out,
-at the price of the albedo's own low frequencies (the level is global). Shading by the normals'
-relief stays in the pattern (it is read as albedo texture).
+together with the albedo's own low frequencies. Shading by the normals' relief stays in the
+pattern (it is read as albedo texture).
+
+Low frequencies. What the local mean divides out of the flash photo is the environment's light
+and the flash's fall-off, but also the albedo's variation at the scale of the box and above
+(a plank darker than its neighbour, a stain). The flash-only image F knows that variation
+without the environment: the per-pixel ratio ``(F_c − S)/G`` (the level's ratio) is the albedo
+itself, noisy pixel by pixel (F is the difference of two shots) but not over a box. ``B_c`` is
+that ratio averaged over the pattern's box around each pixel, counting only the level's clean
+pixels (unsaturated, the lobe below half the level), relative to its mean (1 where a box holds
+under ``LOWS_MIN_SHARE`` clean pixels). On the validation captures (``configs/data_real_val.toml``,
+24, and ``configs/data_real_val2.toml``, 48; training materials and maps) the estimate's diffuse
+RMSE went 0.04758 → 0.04624 and 0.03088 → 0.02976 (network weight 0.5; a grey ``B``, the
+channels' mean: 0.04646 / 0.02996; boxes of half and twice the radius: 0.04762 / 0.04731 on the
+first set); with it the network weights 0.4 / 0.5 / 0.6 / 0.7 gave 0.04701 / 0.04624 / 0.04605 /
+0.04642 and – / 0.02976 / 0.02926 / 0.02910, hence 0.6. Giving the network's map the same low
+frequencies instead of its own made it worse (0.04736).
 
 The no-flash rings. The ring statistics still carry the albedo texture's mean over each ring: a
 texture brighter at the frame's centre (or a rock whose lit faces happen to sit there) reads as
@@ -242,6 +260,7 @@ RELIEF_MARGIN = 1e-4  # ... and by at least this much of the cost (a 1 % rms rin
 RELIEF_WEIGHTS = (0.25, 0.5, 0.75)  # the sharper lobe's share of F0 in the two-lobe profile
 LOBE_SHARE = 0.5  # the "clean" level leaves out the pixels whose fitted lobe exceeds half the level
 CLEAN_MIN = 0.1  # ... unless that leaves fewer than 10 % of the pixels (then: the trimmed mean)
+LOWS_MIN_SHARE = 0.2  # a low-frequency box with fewer clean pixels than this share keeps the level
 NETWORK_WEIGHT_SIZE = 256  # above this side the photo pattern's weight falls as 1 / size
 TABLE_SIZE = 1024  # θ samples of the tabulated lobe (linear interpolation per pixel)
 FOOTPRINT_ROUGHNESS = 0.3  # below it the lobe is averaged over each pixel's footprint ...
@@ -266,7 +285,7 @@ class FlashFitConfig:
         minimum=32,
     )
     network_weight: float = option(
-        0.5,
+        0.6,
         "weight of the network's diffuse map (scaled to the fitted level) in the diffuse estimate, "
         "photos up to 256² (above: see FlashFitConfig.weight_for)",
         minimum=0,
@@ -307,6 +326,11 @@ class FlashFitConfig:
         "ring residual (mean squared, relative to the level) above which the fitted roughness is "
         'replaced by the network\'s map (module docstring, "Misfit"; inf: never)',
         minimum=0,
+    )
+    pattern_lows: bool = option(
+        True,
+        "the photo pattern's low frequencies, which its local mean divides out, restored per "
+        'channel from the flash-only albedo ratio (module docstring, "Low frequencies")',
     )
     pattern_detail: bool = option(
         True,
@@ -702,6 +726,23 @@ def _grey_pattern(img: np.ndarray, radius: int) -> np.ndarray:
     return pattern
 
 
+def _low_shape(ratio: np.ndarray, clean: np.ndarray, radius: int) -> np.ndarray:
+    """(H, W, 3) float32, mean 1 per channel: the albedo ratio ``(F − S) / G`` (H, W, 3) averaged
+    over a box of ``radius`` around every pixel, counting only the ``clean`` (H, W) pixels (the
+    level's: unsaturated, the fitted lobe below half the level); where a box holds under
+    LOWS_MIN_SHARE of them, 1 (module docstring, "Low frequencies")."""
+    weight = box_mean(clean.astype(np.float64), radius)
+    shape = np.ones(ratio.shape, np.float32)
+    for c in range(3):  # one channel at a time: box_mean's float64 sums are the peak memory
+        low = box_mean(np.where(clean, ratio[..., c], 0.0).astype(np.float64), radius) / np.maximum(
+            weight, 1e-12
+        )
+        mean = float(low[weight >= LOWS_MIN_SHARE].mean()) if (weight >= LOWS_MIN_SHARE).any() else 0.0
+        if mean > 0:
+            shape[..., c] = np.where(weight >= LOWS_MIN_SHARE, np.maximum(low, 0.0) / mean, 1.0)
+    return shape
+
+
 def _detail_shrunk(pattern: np.ndarray, other: np.ndarray, ok: np.ndarray) -> np.ndarray:
     """``pattern`` (H, W) with its detail above NETWORK_WEIGHT_SIZE² scaled by its signal share
     (module docstring, "Detail"): ``low + g · (pattern − low)``, ``low`` the pattern area-averaged
@@ -892,14 +933,18 @@ def fit_flash(
     spec_radiance = s_pix[:, None] * shade[:, None]  # flash-only radiance of the lobe (grey F0)
     ratio = (f_only - spec_radiance) / shade[:, None]
     level_rgb = _level(ratio, ok, s_pix, opts.level_statistic)
+    radius = max(3, int(round(opts.pattern * max(h, w))) | 1) // 2  # an odd box of ≈ pattern × the side
+    lows = np.ones((h, w, 1), np.float32)
+    if opts.pattern_lows:  # module docstring, "Low frequencies"
+        clean = ok & (s_pix < LOBE_SHARE * float(level_rgb.mean()))
+        lows = _low_shape(ratio.reshape(h, w, 3).numpy(), clean.reshape(h, w).numpy(), radius)
     del ratio, f_only
     # the texture pattern: the flash photo minus the lobe, over its local mean (grey)
     img = (fl - spec_radiance / to_radiance).clamp_min(0.0).reshape(h, w, 3).numpy()
-    radius = max(3, int(round(opts.pattern * max(h, w))) | 1) // 2  # an odd box of ≈ pattern × the side
     pattern = _grey_pattern(img, radius)
     if max(h, w) > NETWORK_WEIGHT_SIZE and opts.pattern_detail:  # module docstring, "Detail"
         pattern = _detail_shrunk(pattern, _grey_pattern(noflash, radius), ~saturated)
-    diffuse = np.clip(level_rgb.numpy()[None, None, :] * pattern[..., None], 0.0, 1.0)
+    diffuse = np.clip(level_rgb.numpy()[None, None, :] * lows * pattern[..., None], 0.0, 1.0)
     return FlashFit(
         roughness=r_fit,
         f0=opts.f0,
