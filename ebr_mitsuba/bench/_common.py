@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import platform
 import statistics
@@ -109,3 +110,21 @@ def named_runs(var: str, hint: str, required: bool = True) -> list[tuple[str, Pa
     if required and not out:
         raise InputError(f"${var} names no run; {hint}")
     return out
+
+
+def truth_emitter(sample: Path):
+    """``(emitter factory, description)`` of the environment sample ``sample`` was rendered under,
+    in photo units (× the sample's exposure); None for a dark sample."""
+    from ..data.renderers import rotated_envmap_dict
+    from ..scene import sg_emitter_dict
+    from ..sgenv import SGEnvironment
+
+    record = json.loads((sample / "sample.json").read_text())
+    env, exposure = record.get("env") or {}, float(record["camera"]["exposure"])
+    if env.get("type") == "equirect":
+        path, rotation, scale = env["map"]["path"], float(env["rotation"]), float(env["scale"]) * exposure
+        return (lambda: rotated_envmap_dict(path, rotation, scale)), f"{env['map']['name']} (HDR map)"
+    if env.get("lobes"):
+        lobes = SGEnvironment.load(sample / env.get("file", "env.json"))
+        return (lambda: sg_emitter_dict(lobes, exposure)), f"{lobes.num_lobes} SG lobes"
+    return None

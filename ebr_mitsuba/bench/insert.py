@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import machine
+from ._common import machine, truth_emitter
 
 PAGE = "insert.md"
 RES, SPP = 128, 256  # the insertions: the acceptance's 256 spp
@@ -101,7 +101,6 @@ def _split_cases(tmp: Path, data: Path, n: int, predictor) -> list[tuple[str, Pa
     from ..estimate.pipeline import EstimateConfig, run_estimate
     from ..evaluation.evaluate import _truth
     from ..insert import Plate, load_estimate
-    from .mair import truth_emitter
 
     ds = GeneratedDataset(str(data))
     nominal = float(json.loads((data / "dataset.json").read_text())["config"]["capture"]["flash_intensity"])

@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ._common import machine, named_runs
+from ._common import machine, named_runs, truth_emitter
 from .models import _recording, _row, _sheet, _small, training_summary
 
 DEFAULT_OUT = "docs"
@@ -170,24 +170,6 @@ def views_predictor(predictor, data: Path, record: Recorded, keep: int, view_fit
         return est.maps if est.maps.shape == size else resample_svbrdf(est.maps, size)
 
     return run
-
-
-def truth_emitter(sample: Path):
-    """``(emitter factory, description)`` of the environment sample ``sample`` was rendered under,
-    in photo units (× the sample's exposure); None for a dark sample."""
-    from ..data.renderers import rotated_envmap_dict
-    from ..scene import sg_emitter_dict
-    from ..sgenv import SGEnvironment
-
-    record = json.loads((sample / "sample.json").read_text())
-    env, exposure = record.get("env") or {}, float(record["camera"]["exposure"])
-    if env.get("type") == "equirect":
-        path, rotation, scale = env["map"]["path"], float(env["rotation"]), float(env["scale"]) * exposure
-        return (lambda: rotated_envmap_dict(path, rotation, scale)), f"{env['map']['name']} (HDR map)"
-    if env.get("lobes"):
-        lobes = SGEnvironment.load(sample / env.get("file", "env.json"))
-        return (lambda: sg_emitter_dict(lobes, exposure)), f"{lobes.num_lobes} SG lobes"
-    return None
 
 
 def insertions(estimates: list, truths: list, samples: list[Path], res: int, spp: int, log=print) -> dict:
@@ -527,4 +509,4 @@ def _page(record, summaries, runs, ds, seconds, inserted, figure: bool) -> str:
     return "\n".join(lines)
 
 
-__all__ = ["CentreViewOnly", "acceptance_lines", "lighting_errors", "run", "truth_emitter", "unavailable"]
+__all__ = ["CentreViewOnly", "acceptance_lines", "lighting_errors", "run", "unavailable"]
