@@ -623,12 +623,18 @@ def differential(
     return out.astype(np.float32)
 
 
+def composites(plate: Plate, cfg: InsertConfig) -> bool:
+    """Whether the insertion is composited into the plate's photo: ``--background photo``, the
+    estimate's own camera and a no-flash photo; else the frame is rendered whole."""
+    return cfg.background == "photo" and cfg.elevation >= 90.0 and plate.photo is not None
+
+
 def photo_background(plate: Plate, cfg: InsertConfig, res: int) -> np.ndarray | None:
     """The photo the insertion is composited into at ``res``², or None when the frame is rendered
-    whole (``--background render``, another camera than the estimate's, no no-flash photo)."""
+    whole (:func:`composites`)."""
     from .imageio import resize_area, upsample_bilinear_fast
 
-    if cfg.background != "photo" or cfg.elevation < 90.0 or plate.photo is None:
+    if not composites(plate, cfg):
         return None
     photo = plate.photo
     if photo.shape[:2] == (res, res):
@@ -758,8 +764,8 @@ def run_insert(estimate_dir, out, cfg: InsertConfig, truth_dir=None, progress: b
     truth = load_capture(truth_dir) if truth_dir is not None else None
     res = cfg.res or min(plate.resolution, DEFAULT_MAX_RES)
     shape = object_dict(cfg)  # loads (and checks) a mesh file once
-    photo = photo_background(plate, cfg, res)
-    renders = 1 + (truth is not None) + (photo is not None and shape is not None)
+    composited = composites(plate, cfg)
+    renders = 1 + (truth is not None) + (composited and shape is not None)
     bar = tqdm(
         total=cfg.spp * renders,
         desc="insert",
@@ -789,7 +795,7 @@ def run_insert(estimate_dir, out, cfg: InsertConfig, truth_dir=None, progress: b
         "fov": plate.fov,
         "camera": list(camera_shot(plate.fov, cfg.elevation).camera),
         "integrator": {"type": "path", "max_depth": MAX_DEPTH, "hide_emitters": True},
-        "composited": photo is not None,
+        "composited": composited,
         "preview_exposure": gain,
         "render_seconds": seconds,
         "renderer": describe(),
@@ -808,7 +814,7 @@ def run_insert(estimate_dir, out, cfg: InsertConfig, truth_dir=None, progress: b
             ]
         summary["rmse"] = rmse(images["insert"], images["truth"])
         summary["rel_rmse"] = rel_rmse(images["insert"], images["truth"])
-        if photo is not None:  # the same insertion rendered whole, for comparison
+        if composited:  # the same insertion rendered whole, for comparison
             summary["render_rmse"] = rmse(rendered, images["truth"])
             summary["render_rel_rmse"] = rel_rmse(rendered, images["truth"])
     summary["seconds"] = round(time.perf_counter() - t0, 3)
@@ -821,6 +827,7 @@ __all__ = [
     "MATERIALS",
     "OBJECTS",
     "camera_shot",
+    "composites",
     "differential",
     "estimate_photo",
     "insertion_images",

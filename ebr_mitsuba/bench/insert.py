@@ -78,10 +78,11 @@ def measure(plate, truth, material: str, res: int, spp: int) -> dict:
     return {**row, "picture": np.clip(picture, 0, None)}
 
 
-def _capture_cases(tmp: Path, n: int, res: int, capture_spp: int, predictor) -> list[tuple[str, Path, Path]]:
-    """(label, estimate dir, capture dir) of the first ``n`` :data:`CAPTURES`."""
+def _capture_cases(tmp: Path, n: int, res: int, capture_spp: int, predictor) -> list[tuple]:
+    """(label, short label, estimate plate, truth plate) of the first ``n`` :data:`CAPTURES`."""
     from ..capture import capture
     from ..estimate.pipeline import EstimateConfig, run_estimate
+    from ..insert import load_capture, load_estimate
 
     cases = []
     for k, (material, env) in enumerate(CAPTURES[:n]):
@@ -90,12 +91,12 @@ def _capture_cases(tmp: Path, n: int, res: int, capture_spp: int, predictor) -> 
         capture(material, env, "near", cap, spp=capture_spp, res=res, progress=False)
         cfg = EstimateConfig(flash=str(cap / "flash.exr"), noflash=str(cap / "noflash.exr"), out=str(est))
         run_estimate(cfg, predictor=predictor)
-        cases.append((f"`{material}` under `{env}`", est, cap))
+        cases.append((f"`{material}` under `{env}`", material, load_estimate(est), load_capture(cap)))
     return cases
 
 
-def _split_cases(tmp: Path, data: Path, n: int, predictor) -> list[tuple[str, Path, object]]:
-    """(label, estimate dir, truth plate) of the first ``n`` samples of the test split."""
+def _split_cases(tmp: Path, data: Path, n: int, predictor) -> list[tuple]:
+    """(label, short label, estimate plate, truth plate) of the first ``n`` samples of the test split."""
     from ..data.dataset import GeneratedDataset
     from ..data.store import sample_dirname
     from ..estimate.pipeline import EstimateConfig, run_estimate
@@ -125,7 +126,7 @@ def _split_cases(tmp: Path, data: Path, n: int, predictor) -> list[tuple[str, Pa
         emitter, described = made
         truth = Plate(sample, "capture", _truth(ds[i]), plate.fov, emitter)
         material = Path(record["material"].get("path") or record["material"].get("spec", "?")).name
-        cases.append((f"{sample.name}: {material} under {described}", est, truth))
+        cases.append((f"{sample.name}: {material} under {described}", sample.name, plate, truth))
     return cases
 
 
@@ -243,27 +244,26 @@ def run(out_dir: Path, quick: bool = False) -> Path:
     split = os.environ.get("EBR_SPLIT_DATA")
     with tempfile.TemporaryDirectory(prefix="ebr-bench-insert-") as tmp:
         tmp = Path(tmp)
-        from ..insert import load_capture, load_estimate
-
         cases = [
-            ("synthetic", label, load_estimate(est), load_capture(cap), s["materials"])
-            for label, est, cap in _capture_cases(tmp, s["captures"], s["res"], s["capture_spp"], predictor)
+            ("synthetic", *case, s["materials"])
+            for case in _capture_cases(tmp, s["captures"], s["res"], s["capture_spp"], predictor)
         ]
         if split:
             cases += [
-                ("test split", label, load_estimate(est), truth, ("diffuse",))
-                for label, est, truth in _split_cases(tmp, Path(split), s["test"], predictor)
+                ("test split", *case, ("diffuse",))
+                for case in _split_cases(tmp, Path(split), s["test"], predictor)
             ]
         else:
             _log("EBR_SPLIT_DATA not set: synthetic captures only")
-        for group, label, plate, truth, materials in cases:
+        pictured = set()  # every synthetic insertion and the first of the test split get a picture
+        for group, label, short, plate, truth, materials in cases:
             for material in materials:
                 _log(f"insertion ({material}) into {label}")
                 r = measure(plate, truth, material, s["res"], s["spp"])
                 picture = r.pop("picture")
-                short = label.split(":")[0] if group == "test split" else label.split("`")[1]
                 rows.append({"group": group, "case": label, "case_short": short, "material": material, **r})
-                if group == "synthetic" or not any(r["group"] == group for r in rows[:-1]):
+                if group == "synthetic" or group not in pictured:
+                    pictured.add(group)
                     name = f"insert_{len(pictures)}.png"
                     write_png(out_dir / name, picture, clip="hue")
                     pictures.append((f"{label}, {material} sphere", name))
@@ -271,7 +271,5 @@ def run(out_dir: Path, quick: bool = False) -> Path:
     page = _page(rows, pictures, s, time.perf_counter() - t0, quick)
     path = out_dir / PAGE
     atomic_write_text(path, page)
-    (out_dir / "insert.json").write_text(
-        json.dumps({"settings": {k: v for k, v in s.items()}, "rows": rows}, indent=1)
-    )
+    atomic_write_text(out_dir / "insert.json", json.dumps({"settings": dict(s), "rows": rows}, indent=1))
     return path

@@ -510,6 +510,12 @@ def _trimmed_mean(x: torch.Tensor, cut: float = TRIM) -> torch.Tensor:
     return inside.mean() if inside.numel() else x.mean()
 
 
+def _clean(ok: torch.Tensor, lobe: torch.Tensor, level: torch.Tensor) -> torch.Tensor:
+    """The pixels a level is read on: unsaturated (``ok``) and the fitted ``lobe`` below
+    LOBE_SHARE of the (3,) ``level``'s mean (the "clean" statistic, module docstring)."""
+    return ok & (lobe < LOBE_SHARE * level.mean())
+
+
 def _level(ratio: torch.Tensor, ok: torch.Tensor, lobe: torch.Tensor, statistic: str) -> torch.Tensor:
     """(3,) albedo level from the (N, 3) per-pixel ratios ``(F − S) / G``: ``trimmed``, the mean
     of their middle 80 % over the unsaturated pixels ``ok``; ``clean``, the plain mean over the
@@ -517,7 +523,7 @@ def _level(ratio: torch.Tensor, ok: torch.Tensor, lobe: torch.Tensor, statistic:
     trimmed = torch.stack([_trimmed_mean(ratio[ok, c]) for c in range(3)]).clamp(1e-4, 1.0)
     if statistic == "trimmed":
         return trimmed
-    clean = ok & (lobe < LOBE_SHARE * trimmed.mean())
+    clean = _clean(ok, lobe, trimmed)
     if int(clean.sum()) < CLEAN_MIN * ok.numel():
         return trimmed
     return ratio[clean].mean(0).clamp(1e-4, 1.0)
@@ -745,14 +751,17 @@ def _low_shape(ratio: np.ndarray, clean: np.ndarray, radius: int) -> np.ndarray:
     level's: unsaturated, the fitted lobe below half the level); where a box holds under
     LOWS_MIN_SHARE of them, 1 (module docstring, "Low frequencies")."""
     weight = box_mean(clean.astype(np.float64), radius)
+    enough = weight >= LOWS_MIN_SHARE
     shape = np.ones(ratio.shape, np.float32)
+    if not enough.any():
+        return shape
     for c in range(3):  # one channel at a time: box_mean's float64 sums are the peak memory
         low = box_mean(np.where(clean, ratio[..., c], 0.0).astype(np.float64), radius) / np.maximum(
             weight, 1e-12
         )
-        mean = float(low[weight >= LOWS_MIN_SHARE].mean()) if (weight >= LOWS_MIN_SHARE).any() else 0.0
+        mean = float(low[enough].mean())
         if mean > 0:
-            shape[..., c] = np.where(weight >= LOWS_MIN_SHARE, np.maximum(low, 0.0) / mean, 1.0)
+            shape[..., c] = np.where(enough, np.maximum(low, 0.0) / mean, 1.0)
     return shape
 
 
@@ -949,7 +958,7 @@ def fit_flash(
     radius = max(3, int(round(opts.pattern * max(h, w))) | 1) // 2  # an odd box of ≈ pattern × the side
     lows = np.ones((h, w, 1), np.float32)
     if opts.pattern_lows:  # module docstring, "Low frequencies"
-        clean = ok & (s_pix < LOBE_SHARE * float(level_rgb.mean()))
+        clean = _clean(ok, s_pix, level_rgb)
         lows = _low_shape(ratio.reshape(h, w, 3).numpy(), clean.reshape(h, w).numpy(), radius)
     del ratio, f_only
     # the texture pattern: the flash photo minus the lobe, over its local mean (grey)
