@@ -125,6 +125,23 @@ def test_gain_scales_the_slopes():
     np.testing.assert_allclose(slope(half.normal), 0.5 * slope(one.normal), atol=1e-5)
 
 
+def test_shrunk_scales_the_map_slopes_only():
+    """``shrunk(k)``: unit normals with k × the fitted slopes (1: the fit, 0: flat); the fit's own
+    normals (the diffuse correction's) are left as fitted."""
+    albedo = _albedo(4)
+    flash, noflash, _ = _capture(albedo, _relief(albedo, 0.01))
+    fit = fit_shading_normals(flash, noflash, camera_height=NEAR_DISTANCE)
+    before = fit.normal.copy()
+    slope = lambda n: n[..., :2] / n[..., 2:]  # noqa: E731
+    np.testing.assert_allclose(slope(fit.shrunk(0.7)), 0.7 * slope(fit.normal), atol=1e-5)
+    np.testing.assert_allclose(fit.shrunk(1.0), fit.normal, atol=1e-6)
+    np.testing.assert_allclose(fit.shrunk(0.0)[..., 2], 1.0)
+    assert np.allclose(np.linalg.norm(fit.shrunk(0.7), axis=-1), 1.0, atol=1e-5)
+    np.testing.assert_array_equal(fit.normal, before)
+    with pytest.raises(InputError, match="map_gain"):
+        ShadingNormalsConfig(map_gain=1.5)
+
+
 def test_bad_inputs():
     albedo = _albedo(5)
     flash, noflash, _ = _capture(albedo, _relief(albedo, 0.02))
