@@ -239,6 +239,15 @@ On the same 24 validation captures the estimate's diffuse RMSE went 0.04758 → 
 default 0.5) made it worse, 0.04934 and 0.05184. The pattern's noise is not what limits the diffuse
 map here; the network's share already averages it.
 
+Tried and dropped (2026-12-06): searching for the mirror point. A sample whose mean normal is
+tilted has its highlight off the frame centre (a glazed tile set of the test split is tilted by
+0.3°, 1.6 pixels at 256²), so for lobes sharper than roughness 0.3 the lens and flash position of
+the profile was moved by a pattern search over offsets (8 → 0.25 pixels, the centred fit's
+roughness ± 0.03), keeping the offset of lowest cost and tilting the normals to match. The cost's
+minimum was not the true tilt (a tile set whose tiles differ in roughness, a polished copper):
+on three glossy validation captures the held-out re-render went 0.377 → 0.382, 15.1 → 16.7 and
+unchanged, the copper's specular RMSE 0.166 → 0.374, and the fit took 3–4 s longer.
+
 Input convention: ``flash`` and ``noflash`` are (H, W, 3) linear photo values (saturating at
 ``clip``); ``to_radiance`` scales them to the units where the flash has intensity ``intensity``
 (the reference exposure, ``docs/conventions.md#exposure``). Cost: one pass over the image per
