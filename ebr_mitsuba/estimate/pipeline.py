@@ -568,7 +568,9 @@ def run_estimate(
                 log=log,
             )
             if fitted is not None:  # the photo pattern's shading is the relief's, not the albedo's
-                flash_fit = flash_fit.with_normals(fitted.normal, camera=(0.0, 0.0, near_distance(inputs.fov)))
+                flash_fit = flash_fit.with_normals(
+                    fitted.normal, camera=(0.0, 0.0, near_distance(inputs.fov))
+                )
                 normal = fitted.shrunk(shading["map_gain"])
                 source = "ebr estimate (shading normals, flash fit)"
             stage("shading normals", t0)

@@ -64,18 +64,18 @@ tilt's flash shading ``(n·l) / l_z``, normalised to mean 1 (``FlashFit.with_nor
 Shrinkage. The least-squares ``c`` is the best fit of the shading, not the best guess of the
 normals: ``u`` is only partly relief (albedo texture that is not height, photo noise), so the
 normals that minimise the expected error are ``c_opt · u`` with ``c_opt`` the regression of the
-true slopes on ``u``, which is smaller. Measured against the truth maps, the fitted ``c`` was
-1.5 / 1.6 times ``c_opt`` (median) on the validation captures (``configs/data_real_val.toml``, 24;
+true slopes on ``u``, which is smaller. Measured against the truth maps, the fitted ``c`` was 1.5 /
+1.6 times ``c_opt`` (median) on the validation captures (``configs/data_real_val.toml``, 24;
 ``configs/data_real_val2.toml``, 48). So the diffuse map's shading correction uses the fitted
-slopes (shrinking them there made the diffuse map worse: 0.04606 at 1, 0.04645 / 0.04667 at 0.75
-/ 0.6 on the first set; a stronger correction, the slopes × 1.3, gave 0.04565 there but 0.02947
-against 0.02926 on the second, not adopted), while the normal map takes ``map_gain`` × the slopes. Over ``map_gain``
-1 / 0.7 / 0.6 / 0.55 the estimate's normal RMSE was 0.04801 / 0.04704 / 0.04716 / 0.04731 on the
-first set and 0.04481 / 0.04343 / 0.04310 / 0.04298 on the second (the other maps unchanged), so
-0.6 (2026-12-06; before, 1). A per-capture shrinkage from the two shots' gradients (their
-covariance over their variance, as the flash fit's ``pattern_detail`` does) did not track
-``c_opt`` (the shots' relief shading differs, so that share often came out negative) and is
-not used. The predicted normals' spread falls by the same factor. On the fixed test split
+slopes (shrinking them there made the diffuse map worse: 0.04606 at 1, 0.04645 / 0.04667 at 0.75 /
+0.6 on the first set; a stronger correction, the slopes × 1.3, gave 0.04565 there but 0.02947
+against 0.02926 on the second, not adopted), while the normal map takes ``map_gain`` × the slopes.
+Over ``map_gain`` 1 / 0.7 / 0.6 / 0.55 the estimate's normal RMSE was 0.04801 / 0.04704 / 0.04716 /
+0.04731 on the first set and 0.04481 / 0.04343 / 0.04310 / 0.04298 on the second (the other maps
+unchanged), so 0.6 (2026-12-06; before, 1). A per-capture shrinkage from the two shots' gradients
+(their covariance over their variance, as the flash fit's ``pattern_detail`` does) did not track
+``c_opt`` (the shots' relief shading differs, so that share often came out negative) and is not
+used. The predicted normals' spread falls by the same factor. On the fixed test split
 (``docs/models.md``, one ``ebr bench models`` run) the estimate's normal RMSE went 0.0361 → 0.0349
 (the oracle constant maps 0.0350), the spread 0.28 → 0.21 of the truth's.
 
@@ -125,7 +125,7 @@ class ShadingNormalsConfig:
     gain: float = option(1.0, "factor on the fitted slopes (1: the least-squares fit)", minimum=0)
     map_gain: float = option(
         0.6,
-        "the normal map's slopes over the fitted ones (module docstring, \"Shrinkage\"); the diffuse "
+        'the normal map\'s slopes over the fitted ones (module docstring, "Shrinkage"); the diffuse '
         "map's shading correction uses the fitted slopes",
         minimum=0,
         maximum=1,
