@@ -559,7 +559,7 @@ def run_estimate(
             from .shading_normals import normals_for
 
             t0 = time.perf_counter()
-            shading, fitted = normals_for(
+            shading, fitted, shrunk = normals_for(
                 flash_fit,
                 flash_img,
                 noflash_img,
@@ -568,11 +568,8 @@ def run_estimate(
                 log=log,
             )
             if fitted is not None:  # the photo pattern's shading is the relief's, not the albedo's
-                flash_fit = flash_fit.with_normals(
-                    fitted.normal, camera=(0.0, 0.0, near_distance(inputs.fov))
-                )
-                normal = fitted.shrunk(shading["map_gain"])
-                source = "ebr estimate (shading normals, flash fit)"
+                flash_fit = flash_fit.with_normals(fitted, camera=(0.0, 0.0, near_distance(inputs.fov)))
+                normal, source = shrunk, "ebr estimate (shading normals, flash fit)"
             stage("shading normals", t0)
         if flash_fit.misfits(fit_options.misfit_limit):
             log(

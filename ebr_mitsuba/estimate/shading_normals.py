@@ -167,9 +167,9 @@ class ShadingNormals:
 
     def shrunk(self, factor: float) -> np.ndarray:
         """(H, W, 3) float32 unit normals with the slopes of :attr:`normal` times ``factor`` (in [0, 1])."""
-        n = np.asarray(self.normal, np.float64)
-        out = np.concatenate([factor * n[..., :2], n[..., 2:]], -1)
-        return (out / np.linalg.norm(out, axis=-1, keepdims=True)).astype(np.float32)
+        from ..procedural.normals import normals_to_slopes, slopes_to_normals
+
+        return slopes_to_normals(factor * normals_to_slopes(self.normal))
 
     def to_json(self) -> dict:
         return {
@@ -295,10 +295,11 @@ def normals_for(
     saturated: np.ndarray | None = None,
     options: ShadingNormalsConfig | None = None,
     log=None,
-) -> tuple[dict, ShadingNormals | None]:
+) -> tuple[dict, np.ndarray | None, np.ndarray | None]:
     """``ebr estimate``'s normals for a near pair and its :class:`~.flashfit.FlashFit`: (the
-    ``estimate.json`` record, the :class:`ShadingNormals` or None; the normal map is its
-    :meth:`~ShadingNormals.shrunk` by ``map_gain``). None when the fitted material is
+    ``estimate.json`` record, the fitted (H, W, 3) normals for the diffuse map's shading
+    correction, the normal map: those :meth:`~ShadingNormals.shrunk` by ``map_gain``; module
+    docstring, "Shrinkage"). The normals are None when the fitted material is
     glossy (:func:`glint_ratio` above ``glint_limit``): its flash-only image is the relief's glints,
     which the Lambertian ratio misreads (validation: a glazed tile's normal RMSE 0.056 → 0.066)."""
     opts = options or ShadingNormalsConfig()
@@ -313,13 +314,13 @@ def normals_for(
                 f"keeping the network's normals: a glossy sample (glint ratio {glints:.2f} > "
                 f"{opts.glint_limit:g}; estimate/shading_normals.py)"
             )
-        return record, None
+        return record, None, None
     if log is not None:
         log("fitting the normals to the flash / no-flash shading")
     fit = fit_shading_normals(flash, noflash, camera_height=camera_height, saturated=saturated, options=opts)
     record.update(fit.to_json())
     record["map_gain"] = opts.map_gain
-    return record, fit
+    return record, fit.normal, fit.shrunk(opts.map_gain)
 
 
 __all__ = ["ShadingNormals", "ShadingNormalsConfig", "fit_shading_normals", "glint_ratio", "normals_for"]
