@@ -231,6 +231,16 @@ prior could settle: a rock (acg_Rock006) read 0.76 against a truth of 0.64 has i
 true roughness 0.064 above the minimum, more than the minimum itself, a confident misreading of
 its relief.
 
+Tried and dropped (2026-12-06): a Toksvig correction for relief, ``α² − k · var(slopes)`` (α the
+fitted roughness squared, the slopes of the shading normals fitted before the map's shrinkage,
+:mod:`.shading_normals`). On the validation captures (``configs/data_real_val.toml``, 24; the 21
+dielectrics without a two-lobe relief) the per-capture roughness error against the truth's mean
+correlates with the truth's slope variance by 0.23 and with the fitted slopes' by −0.03: the
+deepest relief sets read right (a thatch, slope variance 0.19, 0.88 for 0.89; a brick set, 0.16,
+0.54 for 0.545) while a rock of the same relief reads 0.11 high and a rusty painted metal 0.12
+low. The RMSE of the per-capture roughness against the truth's mean was 0.0577 uncorrected and
+0.0579 / 0.0587 / 0.0658 / 0.134 for k = 0.05 / 0.1 / 0.25 / 0.5.
+
 Tried and dropped (2026-12-05): denoising the texture pattern with the no-flash shot's. Per band
 (the 3 × 3 detail and the rest) the two shots' pattern deviations were combined by their noise
 variances and shrunk by signal / (signal + noise), the signal power being the shots' covariance.
