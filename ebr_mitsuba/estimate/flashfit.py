@@ -235,7 +235,8 @@ Tried and dropped (2026-12-06): a Toksvig correction for relief, ``α² − k ·
 fitted roughness squared, the slopes of the shading normals fitted before the map's shrinkage,
 :mod:`.shading_normals`). On the validation captures (``configs/data_real_val.toml``, 24; the 21
 dielectrics without a two-lobe relief) the per-capture roughness error against the truth's mean
-correlates with the truth's slope variance by 0.23 and with the fitted slopes' by −0.03: the
+correlates with the truth's slope variance by 0.23 and with the fitted slopes' by −0.03 (the 19
+with fitted normals; the two glossy ones keep the network's and were left uncorrected): the
 deepest relief sets read right (a thatch, slope variance 0.19, 0.88 for 0.89; a brick set, 0.16,
 0.54 for 0.545) while a rock of the same relief reads 0.11 high and a rusty painted metal 0.12
 low. The RMSE of the per-capture roughness against the truth's mean was 0.0577 uncorrected and
