@@ -1,6 +1,6 @@
 """Measure speed against error and write the tables and plots (docs/bench/ in a checkout).
 
-  ebr bench [renderer|generate|extract-sg|estimate|sizes|models|fivelight|mair|insert|all]
+  ebr bench [renderer|generate|extract-sg|estimate|sizes|models|fivelight|mair|insert|flash-fit|all]
             [--out DIR] [--quick] [--json]
 
 Each benchmark writes ``OUT/<name>.md`` (a Markdown table with the reference it was measured
@@ -33,7 +33,11 @@ against, and the PNG plots it links) and returns its path:
   ``EBR_SPLIT_DATA``);
 * ``insert``: ``ebr insert``'s sphere in estimates of synthetic captures (and, with
   ``EBR_SPLIT_DATA``, of test-split samples) against the truth and its noise floor, composited
-  into the photo and rendered whole (writes ``insert.md``, a picture per capture and a plot).
+  into the photo and rendered whole (writes ``insert.md``, a picture per capture and a plot);
+* ``flash-fit``: the flash-profile fit's roughness on validation captures against the same fit on
+  noise-free renders of their true maps, as they are and with flat normals and / or a constant
+  roughness: how much of its error the single-lobe model makes (writes ``flash_fit.md``; needs
+  ``EBR_FLASHFIT_DATA`` or ``EBR_VAL_DATA``).
 
 Default ``--out``: inside a checkout of ebr-mitsuba (the current directory or one above it holds
 the project's ``pyproject.toml``) the checkout's ``docs/bench`` (``docs`` for ``models``,
@@ -76,6 +80,7 @@ BENCHMARKS = (
     "fivelight",
     "mair",
     "insert",
+    "flash-fit",
 )
 OUTSIDE_CHECKOUT = Path("ebr-bench")
 PROJECT = "ebr-mitsuba"
