@@ -242,6 +242,19 @@ deepest relief sets read right (a thatch, slope variance 0.19, 0.88 for 0.89; a 
 low. The RMSE of the per-capture roughness against the truth's mean was 0.0577 uncorrected and
 0.0579 / 0.0587 / 0.0658 / 0.134 for k = 0.05 / 0.1 / 0.25 / 0.5.
 
+Where the error comes from (``ebr bench flash-fit``, ``docs/bench/flash_fit.md``): on noise-free
+renders of the validation captures' own true maps the fitted roughness is off by an RMS of 0.110
+against 0.135 from the photos (63 dielectric captures of ``configs/data_real_val.toml`` and
+``configs/data_real_val2.toml``); with the normal map flattened 0.040, with a constant roughness
+map 0.096, with both 0.005. The relief is most of it. Tried and dropped (2026-12-06), both on
+``configs/data_real_val.toml``: (i) a roughness per albedo cluster (the pixels split at the median
+of the fitted diffuse map's log-luminance, each half ring-fitted alone): the halves' true mean
+roughnesses differ by 0.01–0.09, their fitted ones scatter by far more (a rusty painted metal 0.05
+and 1.0 for 0.84 and 0.80), roughness map RMSE 0.0857 (one constant) → 0.1465; (ii) a two-lobe
+relief reading at RELIEF_GAIN 1.1 (no margin) instead of 2: on the noise-free renders of the true
+maps (the first set's 22 dielectric captures) the RMS error rose from 0.044 to 0.061 (the sharp
+lobe of a relief-free roughness mixture is not the mean roughness).
+
 Tried and dropped (2026-12-05): denoising the texture pattern with the no-flash shot's. Per band
 (the 3 × 3 detail and the rest) the two shots' pattern deviations were combined by their noise
 variances and shrunk by signal / (signal + noise), the signal power being the shots' covariance.
