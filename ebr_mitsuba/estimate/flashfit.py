@@ -253,7 +253,15 @@ roughnesses differ by 0.01–0.09, their fitted ones scatter by far more (a rust
 and 1.0 for 0.84 and 0.80), roughness map RMSE 0.0857 (one constant) → 0.1465; (ii) a two-lobe
 relief reading at RELIEF_GAIN 1.1 (no margin) instead of 2: on the noise-free renders of the true
 maps (the first set's 22 dielectric captures) the RMS error rose from 0.044 to 0.061 (the sharp
-lobe of a relief-free roughness mixture is not the mean roughness).
+lobe of a relief-free roughness mixture is not the mean roughness). Measured, to see whether the
+relief's slope distribution would be enough: the lobe averaged over 128 normals drawn from the
+*true* normal map (azimuths randomised) instead of the flat normal, on both validation sets (63
+captures): noise-free renders of the true maps 0.110 → 0.135, photos 0.135 → 0.128. It helps
+where the relief is plain bumps (acg_Ground080 0.71 → 0.65 for 0.657, acg_Ground027 0.78 → 0.65
+for 0.511, acg_Moss002 0.68 → 0.61 for 0.609) and over-corrects mortar and tile joints (acg_Bricks020
+0.54 → 0.46–0.49 for 0.545, a roofing tile set 0.82 → 0.04 for 0.70): where the relief sits with
+the albedo, the trimmed ring statistic leaves out its glints, so the distribution alone, even the
+true one, does not describe what the rings see.
 
 Tried and dropped (2026-12-05): denoising the texture pattern with the no-flash shot's. Per band
 (the 3 × 3 detail and the rest) the two shots' pattern deviations were combined by their noise
