@@ -265,7 +265,18 @@ true one, does not describe what the rings see. The plain ring mean (``ring_stat
 glints kept) reads the noise-free true maps better, 0.110 → 0.083 (0.075 with the true slopes'
 lobe), but not the photos: 0.1304 → 0.1258 over all 72 validation captures, all of it one glossy
 facade set read as a metal either way (0.78 → 0.66 for 0.057); per capture the error grew in 28
-and fell in 12 (median 0.026 → 0.027), so ``trimmed`` stays.
+and fell in 12 (median 0.026 → 0.027), so ``trimmed`` stays. Tried and dropped (2026-12-06): a
+correction of the fitted roughness learned from the ring profile (ridge regression on the 32 ring
+values over their median, the 32 no-flash shares, the fitted roughness, its misfit and relief
+flag), trained on noise-free renders (fast renderer, light noise added) of the training material
+sets turned, flipped, with their relief scaled and their roughness shifted, five folds of
+materials held out. With the roughness spread over 0.1–0.95 and the relief scaled by 0.5–1.5
+(1850 renders) the held-out materials' RMS error went 0.183 → 0.156, but on the validation photos
+(66 captures read as dielectrics) 0.103 → 0.122 (better in 18, worse in 48: it read them
+0.05–0.1 low); close to the materials as they are (roughness ± 0.1, relief × 0.8–1.2; 1200
+renders) 0.127 → 0.126 on held-out materials and, on the photos, 0.103 → 0.093 but the median
+error 0.030 → 0.043 (better in 23, worse in 43). What one material's relief does to its profile
+does not tell another's.
 
 Tried and dropped (2026-12-05): denoising the texture pattern with the no-flash shot's. Per band
 (the 3 × 3 detail and the rest) the two shots' pattern deviations were combined by their noise
