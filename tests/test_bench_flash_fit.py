@@ -75,6 +75,7 @@ def test_quick_page_on_the_tiny_set_and_refusals(tiny, tmp_path, monkeypatch):
         assert f"| {row['material']} |" in page
     for col in bench.COLUMNS:
         assert f"| {col} |" in page
+    assert not any(col.endswith(bench.FAR) for col in record["summary"])  # a near set: no far pair
 
     monkeypatch.setenv("EBR_FLASHFIT_DATA", str(tmp_path / "missing"))
     with pytest.raises(InputError, match="not a data set"):
@@ -85,3 +86,30 @@ def test_quick_page_on_the_tiny_set_and_refusals(tiny, tmp_path, monkeypatch):
     with pytest.raises(InputError, match="EBR_FLASHFIT_DATA"):
         bench.run(tmp_path / "out", quick=True)
     assert not (tmp_path / "out").exists()
+
+
+def test_far_pair_noise_free_reads_its_roughness_and_marks_the_fit():
+    maps = bench.variant_maps(_maps(roughness=0.4), "flat, constant")
+    fit = bench.noise_free_fit(maps, far=True)
+    assert fit.far_pair and not fit.metal
+    assert fit.roughness == pytest.approx(float(maps.roughness.mean()), abs=0.02)
+
+
+def test_quick_page_of_a_near_far_set_adds_the_far_columns(tiny_nf, tiny, tmp_path, monkeypatch):
+    monkeypatch.setenv("EBR_FLASHFIT_DATA", str(tiny_nf))
+    page = bench.run(tmp_path, quick=True).read_text()
+    record = json.loads((tmp_path / "flash_fit.json").read_text())
+    rows = record["rows"]
+    assert len(rows) + record["metals_left_out"] + len(record["refused"]) == bench.QUICK_SAMPLES
+    for refused in record["refused"]:  # one line naming the sample and why (a saturated tiny capture)
+        assert "\n" not in refused and "saturated" in refused and f"{len(record['refused'])} refused" in page
+    assert rows and all("capture" + bench.FAR in r for r in rows)
+    assert record["summary"]["capture" + bench.FAR]["n"] == len(rows)
+    assert "## Per capture, with the far pair" in page and "| flat, constant + far |" in page
+    paired = record["paired"]
+    assert set(paired) == set(bench.COLUMNS) and all(p["n"] == len(rows) for p in paired.values())
+    err = [r["capture" + bench.FAR]["roughness"] - r["truth"] for r in rows]
+    assert paired["capture"]["far"] == pytest.approx(float(np.sqrt(np.mean(np.square(err)))))
+    assert "| near pair | near + far pair |" in page
+    with pytest.raises(InputError, match="no far pair"):
+        bench.capture_fit(tiny, 0, 10.0, far=True)

@@ -243,12 +243,17 @@ low. The RMSE of the per-capture roughness against the truth's mean was 0.0577 u
 0.0579 / 0.0587 / 0.0658 / 0.134 for k = 0.05 / 0.1 / 0.25 / 0.5.
 
 Where the error comes from (``ebr bench flash-fit``, ``docs/bench/flash_fit.md``): on noise-free
-renders of the validation captures' own true maps the fitted roughness is off by an RMS of 0.110
-against 0.135 from the photos (63 dielectric captures of ``configs/data_real_val.toml`` and
-``configs/data_real_val2.toml``); with the normal map flattened 0.040, with a constant roughness
-map 0.096, with both 0.005. The relief is most of it. Tried and dropped (2026-12-06), both on
-``configs/data_real_val.toml``: (i) a roughness per albedo cluster (the pixels split at the median
-of the fitted diffuse map's log-luminance, each half ring-fitted alone): the halves' true mean
+renders of the validation captures' own true maps the fitted roughness is off by an RMS of 0.102
+against 0.122 from the photos (89 dielectric captures of ``configs/data_real_val.toml``,
+``configs/data_real_val2.toml`` and ``configs/data_real_near_far_val.toml``, near pairs; 0.110
+and 0.135 on the first two sets' 63, the baseline of the tries below); with the normal map
+flattened 0.040, with a constant roughness map 0.091, with both 0.005. The relief is most of it,
+and the far pair cancels much of it: on the 22 near-far captures the photos' error is 0.067 from
+the near pair and 0.025 with the far pair (noise-free true maps 0.072 → 0.035).
+
+Tried and dropped (2026-12-06), both on ``configs/data_real_val.toml``: (i) a roughness per
+albedo cluster (the pixels split at the median of the fitted diffuse map's log-luminance, each
+half ring-fitted alone): the halves' true mean
 roughnesses differ by 0.01–0.09, their fitted ones scatter by far more (a rusty painted metal 0.05
 and 1.0 for 0.84 and 0.80), roughness map RMSE 0.0857 (one constant) → 0.1465; (ii) a two-lobe
 relief reading at RELIEF_GAIN 1.1 (no margin) instead of 2: on the noise-free renders of the true
