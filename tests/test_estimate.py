@@ -999,3 +999,33 @@ def test_shading_normals_follow_the_relief_and_can_be_switched_off(tmp_path, cap
     )
     # by a margin that depends on the shipped network: 0.064 against 0.071 with the 256² model
     assert map_rmse(shaded, truth)["normal"] < 0.95 * map_rmse(network, truth)["normal"]
+
+
+def test_phone_far_pair_needs_the_far_flash_ratio(tmp_path, capsys, fake_net):
+    """A phone's far pair: its one flash from four times farther, so the far flash-only image is
+    (far / near)² ≈ 17× darker than ``ebr capture``'s (whose far flash is as bright at the sample).
+    Without capture.json the flash fit assumes the latter and the near − far rings read nonsense;
+    ``--far-flash-ratio 1`` states the phone's case and the roughness comes out right."""
+    material = _material(GRID)  # the fake model's grid
+    shots = [near_shot(True), near_shot(False), far_shot(True, intensity=10.0), far_shot(False)]
+    paths = {}
+    for name, img in _render(material, shots).items():
+        paths[name] = tmp_path / f"{name}.exr"
+        write_exr(paths[name], img)
+    args = ["--flash", paths["flash"], "--noflash", paths["noflash"]]
+    args += ["--far-flash", paths["far_flash"], "--far-noflash", paths["far_noflash"]]
+    truth = float(material.roughness.mean())
+    rough = {}
+    for ratio in (None, 1.0):
+        extra = [] if ratio is None else ["--far-flash-ratio", ratio]
+        code, stdout, err = _estimate([*args, *extra, "--out", tmp_path / f"est{ratio}", "--json"], capsys)
+        assert code == 0, err
+        fit = json.loads(stdout)["flash_fit"]
+        assert fit["far_pair"] is True
+        rough[ratio] = fit["roughness"]
+    assert abs(rough[1.0] - truth) < 0.1
+    assert abs(rough[None] - truth) > 0.2  # the assumption a phone's far pair breaks
+
+    code, _, err = _estimate([*args[:4], "--far-flash-ratio", 1, "--out", tmp_path / "bad"], capsys)
+    _assert_refused(code, err, tmp_path / "bad")
+    assert "--far-flash-ratio needs --far-flash" in err

@@ -109,6 +109,14 @@ class EstimateConfig:
     )
     far_flash: str | None = option(None, "far shot with the flash", flag="--far-flash", metavar="F2")
     far_noflash: str | None = option(None, "far shot without the flash", flag="--far-noflash", metavar="NF2")
+    far_flash_ratio: float | None = option(
+        None,
+        "the far flash's intensity (W/sr) over the near flash's; 1 for a phone's one flash",
+        above=0,
+        flag="--far-flash-ratio",
+        metavar="R",
+        shown="capture.json, else (far / near distance)²: as bright at the sample, as ebr capture",
+    )
     checkpoint: str | None = checkpoint_option(
         "model checkpoint (none: with far shots, the shipped near-far model)", "the shipped model"
     )
@@ -225,9 +233,13 @@ def known_flash_intensity(cfg: EstimateConfig, inputs: Inputs) -> tuple[float | 
 
 
 def stated_far_ratio(cfg: EstimateConfig, inputs: Inputs) -> float | None:
-    """The far flash's intensity over the near flash's when ``capture.json`` states both, else
-    None (the flash fit then takes (far / near distance)², what ``ebr capture`` and ``ebr
-    generate`` use: :class:`~.flashfit.FarPair`)."""
+    """The far flash's intensity over the near flash's: ``--far-flash-ratio``, else what
+    ``capture.json`` states for both, else None (the flash fit then takes (far / near distance)²,
+    what ``ebr capture`` and ``ebr generate`` use: :class:`~.flashfit.FarPair`; a phone's far
+    pair, its one flash four times farther, is 1 and reads a roughness of 1.0 under that
+    assumption)."""
+    if cfg.far_flash_ratio is not None:
+        return float(cfg.far_flash_ratio)
     known = capture_intensities(cfg.flash)
     near = known.get(Path(inputs.paths["flash"]).name)
     far = known.get(Path(inputs.paths.get("far_flash", "")).name)
@@ -247,7 +259,10 @@ def _intensities(
             continue
         d = shots[name].camera[2]
         if cfg.flash_intensity is not None:
-            value = scale * cfg.flash_intensity * (d / near_distance(inputs.fov)) ** 2
+            far_ratio = (d / near_distance(inputs.fov)) ** 2
+            if name == "far_flash" and cfg.far_flash_ratio is not None:
+                far_ratio = cfg.far_flash_ratio
+            value = scale * cfg.flash_intensity * far_ratio
             source = "--flash-intensity"
         elif Path(inputs.paths[name]).name in known:
             value, source = scale * known[Path(inputs.paths[name]).name], "capture.json"
@@ -436,6 +451,8 @@ def run_estimate(
             saturation_level=cfg.saturation_level,
             progress=steps,
         )
+    if cfg.far_flash_ratio is not None and not inputs.has_far:
+        raise InputError("--far-flash-ratio needs --far-flash and --far-noflash: it scales the far flash")
     if cfg.refine.lobes and inputs.flash_only:
         raise InputError("--refine-lobes needs --noflash: a flash-only capture has no lighting to refine")
     known, known_source = known_flash_intensity(cfg, inputs)
