@@ -526,6 +526,7 @@ def test_estimate_near_far_from_capture_dir(tmp_path, capsys, fake_net):
     assert summary["flash"]["flash"] == {"intensity": 10.0, "source": "capture.json"}
     assert summary["flash"]["far_flash"]["source"] == "capture.json"
     assert fake_net[0]["far"]
+    assert not any("--far-flash-ratio" in w for w in summary["warnings"])
 
 
 def test_estimate_flash_only_png(tmp_path, capsys, fake_net):
@@ -1020,9 +1021,12 @@ def test_phone_far_pair_needs_the_far_flash_ratio(tmp_path, capsys, fake_net):
         extra = [] if ratio is None else ["--far-flash-ratio", ratio]
         code, stdout, err = _estimate([*args, *extra, "--out", tmp_path / f"est{ratio}", "--json"], capsys)
         assert code == 0, err
-        fit = json.loads(stdout)["flash_fit"]
+        summary = json.loads(stdout)
+        fit = summary["flash_fit"]
         assert fit["far_pair"] is True
         rough[ratio] = fit["roughness"]
+        warned = [w for w in summary["warnings"] if "--far-flash-ratio 1" in w]
+        assert len(warned) == (ratio is None), summary["warnings"]  # said when not stated
     assert abs(rough[1.0] - truth) < 0.1
     assert abs(rough[None] - truth) > 0.2  # the assumption a phone's far pair breaks
 

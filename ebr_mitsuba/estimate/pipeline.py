@@ -246,6 +246,22 @@ def stated_far_ratio(cfg: EstimateConfig, inputs: Inputs) -> float | None:
     return float(far) / float(near) if near and far else None
 
 
+FAR_DIM_LIMIT = 4.0  # a far flash-only image this many times darker than the near one: a phone's pair
+
+
+def far_flash_dimness(images: dict) -> float | None:
+    """How many times darker the far flash-only image is than the near one (means over the frame,
+    the photos at one exposure), when that is more than FAR_DIM_LIMIT; else None. With the far
+    flash as bright at the sample (``ebr capture``) the two are alike; a phone's one flash from
+    four times farther makes the far one about 17× darker."""
+    near = float(np.mean(images["flash"] - images["noflash"]))
+    far = float(np.mean(images["far_flash"] - images["far_noflash"]))
+    if not near > 0:
+        return None
+    ratio = near / max(far, near * 1e-6)
+    return ratio if ratio > FAR_DIM_LIMIT else None
+
+
 def _intensities(
     cfg: EstimateConfig, inputs: Inputs, maps: SVBRDF, shots: dict[str, Shot], scale: float = 1.0
 ) -> dict:
@@ -553,6 +569,14 @@ def run_estimate(
         far_pair = None
         if work_inputs.has_far and not work_inputs.flash_only:
             ratio = stated_far_ratio(cfg, inputs)
+            dim = far_flash_dimness(work_inputs.images) if ratio is None else None
+            if dim is not None:
+                inputs.warnings.append(
+                    f"the far flash-only image is {dim:.0f}x darker than the near one, but the far flash "
+                    "is assumed as bright at the sample (no capture.json): a far pair lit by the same "
+                    "flash (a phone's) needs --far-flash-ratio 1"
+                )
+                log(f"warning: {inputs.warnings[-1]}")
             far_pair = FarPair(
                 work_inputs.images["far_flash"],
                 work_inputs.images["far_noflash"],
