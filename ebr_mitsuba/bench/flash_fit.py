@@ -80,10 +80,9 @@ def capture_fit(root: Path, index: int, nominal: float, far: bool = False):
     data set's ``nominal`` intensity × the sample's exposure, as ``capture.json`` states it);
     ``far``: with the sample's far pair (an error when it has none)."""
     from ..data.store import sample_dirname
-    from ..estimate.flashfit import FarPair, fit_flash
     from ..estimate.inputs import load_inputs
-    from ..estimate.pipeline import near_distance
-    from ..geometry import DEFAULT_FLASH_INTENSITY, FAR_DISTANCE
+    from ..estimate.pipeline import fit_capture_flash
+    from ..geometry import DEFAULT_FLASH_INTENSITY
 
     sample = root / sample_dirname(index)
     record = json.loads((sample / "sample.json").read_text())
@@ -95,22 +94,7 @@ def capture_fit(root: Path, index: int, nominal: float, far: bool = False):
     far_paths = (str(shots["far_flash"]), str(shots["far_noflash"])) if far else (None, None)
     inputs = load_inputs(str(shots["flash"]), str(shots["noflash"]), *far_paths)
     inputs = inputs.scaled(DEFAULT_FLASH_INTENSITY / (nominal * float(record["camera"]["exposure"])))
-    clip = inputs.clip_level if inputs.clip_level is not None else math.inf
-    pair = None
-    if far:  # as ebr estimate builds it (the far intensity: (far / near distance)² × the near one)
-        images = inputs.images
-        pair = FarPair(
-            images["far_flash"], images["far_noflash"], (0.0, 0.0, FAR_DISTANCE), None, inputs.saturated
-        )
-    fit = fit_flash(
-        inputs.images["flash"],
-        inputs.images["noflash"],
-        intensity=DEFAULT_FLASH_INTENSITY,
-        camera=(0.0, 0.0, near_distance(inputs.fov)),
-        saturated=inputs.saturated,
-        clip_level=clip,
-        far=pair,
-    )
+    fit = fit_capture_flash(inputs, inputs.fov)  # the far flash: FarPair's default, as generated
     return fit, Path(record["material"].get("spec", "?")).name
 
 

@@ -246,6 +246,39 @@ def stated_far_ratio(cfg: EstimateConfig, inputs: Inputs) -> float | None:
     return float(far) / float(near) if near and far else None
 
 
+def fit_capture_flash(inputs: Inputs, fov: float, far_ratio: float | None = None, options=None):
+    """:func:`~.flashfit.fit_flash` of a capture's shots at the reference exposure (``inputs``,
+    at the size to fit), as ``ebr estimate`` runs it: the near camera of ``fov``, the photos'
+    saturation and clip level, and the far pair when the capture has one (its flash
+    ``far_ratio`` × the near one's; None: :class:`~.flashfit.FarPair`'s default). A flash-only
+    capture fits its flash shot against a black no-flash one."""
+    from .flashfit import FarPair, fit_flash
+
+    flash = inputs.images["flash"]
+    noflash = inputs.images.get("noflash")
+    if noflash is None:
+        noflash = np.zeros_like(flash)
+    far_pair = None
+    if inputs.has_far and not inputs.flash_only:
+        far_pair = FarPair(
+            inputs.images["far_flash"],
+            inputs.images["far_noflash"],
+            camera=(0.0, 0.0, FAR_DISTANCE),
+            intensity=None if far_ratio is None else far_ratio * DEFAULT_FLASH_INTENSITY,
+            saturated=inputs.saturated,
+        )
+    return fit_flash(
+        flash,
+        noflash,
+        intensity=DEFAULT_FLASH_INTENSITY,
+        camera=(0.0, 0.0, near_distance(fov)),
+        saturated=inputs.saturated,
+        clip_level=inputs.clip_level if inputs.clip_level is not None else math.inf,
+        options=options,
+        far=far_pair,
+    )
+
+
 FAR_DIM_LIMIT = 4.0  # a far flash-only image this many times darker than the near one: a phone's pair
 
 
@@ -275,10 +308,10 @@ def _intensities(
             continue
         d = shots[name].camera[2]
         if cfg.flash_intensity is not None:
-            far_ratio = (d / near_distance(inputs.fov)) ** 2
+            ratio = (d / near_distance(inputs.fov)) ** 2  # the near flash: 1
             if name == "far_flash" and cfg.far_flash_ratio is not None:
-                far_ratio = cfg.far_flash_ratio
-            value = scale * cfg.flash_intensity * far_ratio
+                ratio = cfg.far_flash_ratio
+            value = scale * cfg.flash_intensity * ratio
             source = "--flash-intensity"
         elif Path(inputs.paths[name]).name in known:
             value, source = scale * known[Path(inputs.paths[name]).name], "capture.json"
@@ -553,7 +586,7 @@ def run_estimate(
 
     flash_fit, shading = None, None
     if cfg.flash_fit:
-        from .flashfit import FarPair, FlashFitConfig, fit_flash
+        from .flashfit import FlashFitConfig
 
         t0 = time.perf_counter()
         log(
@@ -564,9 +597,8 @@ def run_estimate(
         noflash_img = work_inputs.images.get("noflash")
         if noflash_img is None:  # a flash-only capture: the flash shot is the flash-only image
             noflash_img = np.zeros_like(flash_img)
-        clip = work_inputs.clip_level if work_inputs.clip_level is not None else math.inf
         fit_options = FlashFitConfig()
-        far_pair = None
+        ratio = None
         if work_inputs.has_far and not work_inputs.flash_only:
             ratio = stated_far_ratio(cfg, inputs)
             dim = far_flash_dimness(work_inputs.images) if ratio is None else None
@@ -577,23 +609,7 @@ def run_estimate(
                     "flash (a phone's) needs --far-flash-ratio 1"
                 )
                 log(f"warning: {inputs.warnings[-1]}")
-            far_pair = FarPair(
-                work_inputs.images["far_flash"],
-                work_inputs.images["far_noflash"],
-                camera=(0.0, 0.0, FAR_DISTANCE),
-                intensity=None if ratio is None else ratio * DEFAULT_FLASH_INTENSITY,
-                saturated=work_inputs.saturated,
-            )
-        flash_fit = fit_flash(
-            flash_img,
-            noflash_img,
-            intensity=DEFAULT_FLASH_INTENSITY,
-            camera=(0.0, 0.0, near_distance(inputs.fov)),
-            saturated=work_inputs.saturated,
-            clip_level=clip,
-            options=fit_options,
-            far=far_pair,
-        )
+        flash_fit = fit_capture_flash(work_inputs, inputs.fov, ratio, fit_options)
         stage("flash fit", t0)
         normal, source = maps.normal, "ebr estimate (network normals, flash fit)"
         if cfg.shading_normals and not flash_fit.metal and not inputs.flash_only:
