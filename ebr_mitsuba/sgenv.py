@@ -22,6 +22,8 @@ from .colour import LUMINANCE
 from .errors import InputError
 from .fsutil import atomic_write_text
 
+IRRADIANCE_NODES = 64  # Gauss–Legendre nodes per piece of the clamped-cosine integral (sg_irradiance)
+
 FORMAT = "ebr-sg/1"
 
 
@@ -86,6 +88,28 @@ class SGEnvironment:
         integ = 2 * np.pi * (-np.expm1(-2 * lam)) / lam
         lum = self.amplitude.astype(np.float64) @ LUMINANCE
         return integ * lum
+
+    def lobe_irradiance(self, normal=(0.0, 0.0, 1.0), nodes: int = IRRADIANCE_NODES) -> np.ndarray:
+        """(K,) float64: each lobe's irradiance at unit amplitude on a plane of unit ``normal`` (the
+        exact clamped-cosine integral, :func:`ebr_mitsuba.sg.sg_irradiance` with ``nodes``
+        Gauss–Legendre nodes per piece)."""
+        from drjit.scalar import Array3f
+
+        from .sg import sg_irradiance
+
+        n = Array3f(*(float(c) for c in normal))
+        return np.array(
+            [
+                float(sg_irradiance(Array3f(*(float(c) for c in axis)), float(lam), 1.0, n, n_nodes=nodes))
+                for axis, lam in zip(self.axis, self.sharpness)
+            ],
+            dtype=np.float64,
+        )
+
+    def irradiance(self, normal=(0.0, 0.0, 1.0)) -> np.ndarray:
+        """RGB irradiance (3,) float64 on a plane of unit ``normal`` (clamped cosine), summed over
+        the lobes (:meth:`lobe_irradiance`)."""
+        return self.lobe_irradiance(normal) @ self.amplitude.astype(np.float64).reshape(-1, 3)
 
     def eval(self, directions: np.ndarray) -> np.ndarray:
         """Radiance (…, 3) in unit directions (…, 3), numpy float64."""

@@ -23,5 +23,8 @@ def test_quick_page_measures_composite_render_and_floor(tmp_path, monkeypatch):
     assert row["composite"] != row["render"]
     assert row["ratio"] == pytest.approx(row["composite"] / row["floor"])
     assert f"**{row['ratio']:.1f}×**" in page and f"{row['render_ratio']:.1f}×" in page
+    # the same estimate with its horizon lobes dropped, measured beside it
+    assert row["dropped_ratio"] > 0 and f"{row['dropped_ratio']:.1f}× |" in page
+    assert "horizon lobes dropped" in page
     for name in ("insert_ratios.png", "insert_0.png"):
         assert (tmp_path / name).is_file() and f"]({name})" in page

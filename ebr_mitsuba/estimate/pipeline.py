@@ -161,6 +161,12 @@ class EstimateConfig:
         "(estimate/shading_normals.py); --no-shading-normals keeps the network's normals",
         flag="--shading-normals",
     )
+    drop_horizon_lobes: bool = option(
+        False,
+        "drop the SG lobes within 3° of the horizon, which the photos barely see, keeping the "
+        "sample's irradiance (estimate/horizon.py; no better on the insertion benchmark)",
+        flag="--drop-horizon-lobes",
+    )
 
 
 ESTIMATE_FLAGS = tuple(  # the fields ebr estimate sets from flags (refine: its own REFINE_FLAGS)
@@ -638,6 +644,17 @@ def run_estimate(
         flash_fit = flash_fit.with_network_diffuse(np.asarray(maps.diffuse), weight)
         maps = flash_fit.maps(normal, source)
 
+    horizon = None
+    if env is not None and cfg.drop_horizon_lobes:
+        from .horizon import drop_horizon_lobes
+
+        env, horizon = drop_horizon_lobes(env)
+        if horizon["applied"]:
+            log(
+                f"dropped {horizon['dropped']} SG lobe(s) at the horizon "
+                f"({100 * horizon['irradiance_share']:.0f} % of the sample's irradiance, kept by the others)"
+            )
+
     t0 = time.perf_counter()
     log(f"re-rendering the shots at {work}x{work}")
     with _Steps(bar, "re-render") as steps:
@@ -715,6 +732,7 @@ def run_estimate(
         "flash_fit": None if flash_fit is None else flash_fit.to_json(),
         "shading_normals": shading,
         "lobes": 0 if final_env is None else final_env.num_lobes,
+        "horizon_lobes": horizon,
         "rerender_error": {"network": net_errors, "refined": final_errors if refined else None},
         "refine": None
         if refined is None

@@ -30,7 +30,6 @@ from .environments import (
     FLASH_IRRADIANCE,
     INTENSITY_LEVELS,
     environment_choice,
-    irradiance,
     irradiance_luminance,
     make_environment,
 )
@@ -46,7 +45,6 @@ __all__ = [
     "FLASH_IRRADIANCE",
     "make_environment",
     "environment_choice",
-    "irradiance",
     "irradiance_luminance",
     "AugmentSettings",
     "augment",

@@ -10,7 +10,7 @@ so that the luminance of the irradiance on the sample plane (normal +z) is
 and finally rotates the whole environment by a random angle about z. ``FLASH_IRRADIANCE`` is the
 default flash's irradiance at the sample centre, ``DEFAULT_FLASH_INTENSITY / NEAR_DISTANCE²`` ≈ 1.72
 (a mid-grey diffuse surface then shows ≈ 0.27 radiance under the flash alone). The irradiance is the
-exact clamped-cosine integral of each lobe (``ebr_mitsuba.sg.sg_irradiance``, 64 nodes), summed.
+exact clamped-cosine integral of each lobe (``SGEnvironment.irradiance``), summed.
 
 ===========  ====================================================================================
 kind         lobes
@@ -50,26 +50,12 @@ ENV_KINDS = ("sun_sky", "window", "overcast")
 INTENSITY_LEVELS: dict[str, float] = {"low": 0.2, "medium": 1.0, "high": 3.0}
 #: Irradiance of the default flash at the sample centre (W/sr / distance²).
 FLASH_IRRADIANCE = DEFAULT_FLASH_INTENSITY / NEAR_DISTANCE**2
-IRRADIANCE_NODES = 64
-
-
-def irradiance(env: SGEnvironment, normal=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """RGB irradiance (3,) float64 of ``env`` on a plane with unit ``normal`` (clamped cosine)."""
-    from drjit.scalar import Array3f
-
-    from ..sg import sg_irradiance
-
-    n = Array3f(*(float(c) for c in normal))
-    total = np.zeros(3)
-    for axis, lam, amp in zip(env.axis, env.sharpness, env.amplitude):
-        e = sg_irradiance(Array3f(*(float(c) for c in axis)), float(lam), 1.0, n, n_nodes=IRRADIANCE_NODES)
-        total += float(e) * amp.astype(np.float64)
-    return total
 
 
 def irradiance_luminance(env: SGEnvironment, normal=(0.0, 0.0, 1.0)) -> float:
-    """Luminance of :func:`irradiance` (the quantity the intensity levels fix)."""
-    return float(irradiance(env, normal) @ LUMINANCE)
+    """Luminance of the irradiance of ``env`` on a plane of unit ``normal``
+    (:meth:`~ebr_mitsuba.sgenv.SGEnvironment.irradiance`; the quantity the intensity levels fix)."""
+    return float(env.irradiance(normal) @ LUMINANCE)
 
 
 def _direction(elevation: float, azimuth: float) -> np.ndarray:
