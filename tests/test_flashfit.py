@@ -328,6 +328,7 @@ def test_far_pair_separates_albedo_from_the_lobe(roughness):
     )
     assert not both.metal and both.far_pair and not near.far_pair
     assert both.to_json()["far_pair"] is True
+    assert both.pixel_median is None  # the far pair reads the roughness: no pixel-median reading
     assert abs(both.roughness - roughness) <= 0.03, both.roughness
     assert abs(near.roughness - roughness) > 0.1, near.roughness  # what the far pair fixes
     np.testing.assert_allclose(both.level, near.level, rtol=0.25)  # the level is the near rings'
@@ -411,6 +412,35 @@ def test_relief_reads_the_sharp_lobe(spread):
     assert abs(fit.roughness - 0.3) <= 0.1, (fit.roughness, fit.relief)
     assert abs(fit.roughness - 0.3) < abs(plain.roughness - 0.3) - 0.05, (fit.roughness, plain.roughness)
     assert fit.to_json()["relief"] == fit.relief
+    assert fit.pixel_median is None  # the relief reading took the tilted pixels apart already
+
+
+def test_pixel_median_reading_resists_a_minority_of_glints():
+    """Roughness 0.5 with 40 % of the pixels tilted (slopes 0.3, too few and too broad for the
+    two-lobe relief reading): their glints lift the trimmed ring means (0.54), while each ring's
+    median of the per-pixel residual follows the flat majority (within 0.02); the estimate is the
+    mean of the two readings, recorded in estimate.json's flash_fit."""
+    flash, noflash, exposure = _relief_capture(_patchy_relief(0.4, 0.3), 0.5)
+    profile = fit_flash(flash, noflash, to_radiance=1 / exposure, options=FlashFitConfig(pixel_median=False))
+    fit = fit_flash(flash, noflash, to_radiance=1 / exposure)
+    assert fit.relief is None and profile.pixel_median is None
+    median = fit.pixel_median
+    assert median["used"] and median["profile"] == pytest.approx(profile.roughness)
+    assert abs(median["roughness"] - 0.5) <= 0.02 < abs(profile.roughness - 0.5), (median, profile.roughness)
+    assert fit.roughness == pytest.approx(0.5 * (median["roughness"] + profile.roughness))
+    assert fit.to_json()["pixel_median"] == median
+
+
+def test_pixel_median_reading_not_used_for_a_lobe_it_cannot_resolve():
+    """Roughness 0.06: the lobe lights a few central pixels that ring medians ignore; a reading below
+    MEDIAN_MIN_ROUGHNESS is recorded but the profile's roughness is kept."""
+    from ebr_mitsuba.estimate.flashfit import MEDIAN_MIN_ROUGHNESS
+
+    flash, noflash, exposure = _relief_capture(_patchy_relief(0.0, 0.0), 0.06)
+    fit = fit_flash(flash, noflash, to_radiance=1 / exposure)
+    assert fit.pixel_median["roughness"] < MEDIAN_MIN_ROUGHNESS and not fit.pixel_median["used"]
+    assert fit.roughness == fit.pixel_median["profile"]
+    assert abs(fit.roughness - 0.06) <= 0.02
 
 
 @pytest.mark.parametrize("roughness", [0.3, 0.5])
