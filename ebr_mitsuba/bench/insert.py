@@ -52,12 +52,13 @@ def _log(msg: str) -> None:
     print(f"[bench insert] {msg}", file=sys.stderr, flush=True)
 
 
-def measure(plate, truth, material: str, res: int, spp: int) -> dict:
+def measure(plate, truth, material: str, res: int, spp: int, dropped=None) -> dict:
     """One insertion of ``material``'s default object into ``plate`` and into ``truth`` (both
     :class:`~ebr_mitsuba.insert.Plate`): RMSE of the insertion (composited where the plate has a
     photo) and of the whole-frame render against the truth's, the truth-vs-truth noise floor
     (another seed), the insertion's and the floor's relative RMSE, and the insertion's picture
-    (estimate | truth | difference, at the truth's exposure)."""
+    (estimate | truth | difference, at the truth's exposure); with ``dropped`` (the plate of the
+    same estimate with its horizon lobes dropped), its insertion's ratio to the same floor."""
     from ..insert import InsertConfig, exposure, insertion_images, object_dict, side_by_side
     from ..metrics import rel_rmse, rmse
 
@@ -76,6 +77,9 @@ def measure(plate, truth, material: str, res: int, spp: int) -> dict:
     }
     row["ratio"] = row["composite"] / floor
     row["render_ratio"] = row["render"] / floor
+    if dropped is not None:  # against the same truth render and floor
+        other = insertion_images(dropped, cfg, res, shape)[0]["insert"]
+        row["dropped_ratio"] = rmse(other, images["truth"]) / floor
     picture = side_by_side(images["insert"], images["truth"], exposure(images["truth"]))
     return {**row, "picture": np.clip(picture, 0, None)}
 
@@ -288,9 +292,8 @@ def run(out_dir: Path, quick: bool = False) -> Path:
         for group, label, short, plate, truth, dropped, materials in cases:
             for material in materials:
                 _log(f"insertion ({material}) into {label}")
-                r = measure(plate, truth, material, s["res"], s["spp"])
+                r = measure(plate, truth, material, s["res"], s["spp"], dropped)
                 picture = r.pop("picture")
-                r["dropped_ratio"] = measure(dropped, truth, material, s["res"], s["spp"])["ratio"]
                 rows.append({"group": group, "case": label, "case_short": short, "material": material, **r})
                 if group == "synthetic" or group not in pictured:
                     pictured.add(group)

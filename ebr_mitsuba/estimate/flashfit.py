@@ -752,6 +752,7 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
     diff_costs = torch.zeros(len(grid), dtype=torch.float64)
     metal_diff_costs = torch.zeros(len(grid), dtype=torch.float64)
     s_rings = torch.zeros(len(grid), opts.bins, dtype=torch.float64)
+    levels = torch.zeros(len(grid), dtype=torch.float64)  # each single lobe's level
     for i, r in enumerate(grid.tolist()):
         s_pixels = lobe_pixels(r)
         s_ring = lobe(ring_v, r)
@@ -762,7 +763,7 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
             x[0] for x in _ring_costs(s_ring[None], ring_med, p_ring, usable, ring_floor, clipped_rings)
         )
         extra = floor + saturation_cost(level + s_pixels)
-        costs[i], fits[i] = fit + extra, fit
+        costs[i], fits[i], levels[i] = fit + extra, fit, level
         unit_ring = s_ring / opts.f0
         m = (ring_med[usable] / unit_ring[usable].clamp_min(1e-12)).median().clamp(1e-4, 1.0)
         metal_extra = floor_cost(m * unit_ring, ring_scale) + saturation_cost(m * s_pixels / opts.f0)
@@ -793,8 +794,7 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
     median = None
     if opts.pixel_median and noflash_read and not use_far and relief is None:  # "The pixel-median reading"
         p_pixel = nf_grey / nf_grey[~excluded].mean().clamp_min(1e-12)
-        profile = _ring_costs(s_rings[best][None], ring_med, p_noflash, usable, ring_floor, clipped_rings)
-        level = float(profile[2][0])
+        level = float(levels[best])  # the profile's level (p_ring is p_noflash without the far pair)
         r_med = _median_reading(g, p_pixel, ring, ~excluded, opts.bins, grid, lobe_pixels, level)
         used = r_med >= MEDIAN_MIN_ROUGHNESS
         median = {"roughness": round(r_med, 4), "profile": round(r_best, 4), "used": used}
