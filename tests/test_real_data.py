@@ -203,3 +203,24 @@ def test_batched_ssim_equals_the_reference_per_pair():
     np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-12)
     with pytest.raises(InputError, match="smaller than"):
         ssim_many(a[:, :8], b[:, :8], data_range=1.0)
+
+
+def test_truth_but_replaces_only_the_named_maps_by_their_means():
+    from ebr_mitsuba.errors import InputError
+    from ebr_mitsuba.evaluation.baselines import oracle_constant, truth_but
+    from ebr_mitsuba.metrics import map_rmse
+    from ebr_mitsuba.svbrdf import SVBRDF
+
+    rng = np.random.default_rng(4)
+    h = w = 8
+    n = np.dstack([rng.normal(0, 0.1, (h, w, 2)), np.ones((h, w))])
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    truth = SVBRDF(n, rng.uniform(0, 1, (h, w, 3)), rng.uniform(0, 0.1, (h, w, 3)), rng.uniform(0, 1, (h, w)))
+    tb = truth_but(truth, ("roughness", "normal"))
+    err, oerr = map_rmse(tb, truth), map_rmse(oracle_constant(truth), truth)
+    assert err["diffuse"] < 1e-6 and err["specular"] < 1e-6
+    np.testing.assert_allclose(
+        [err["roughness"], err["normal"]], [oerr["roughness"], oerr["normal"]], rtol=1e-5
+    )
+    with pytest.raises(InputError, match="unknown map"):
+        truth_but(truth, ("albedo",))

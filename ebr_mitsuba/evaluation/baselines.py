@@ -2,6 +2,8 @@
 
 * :class:`MeanMaps` — baseline (a): every sample gets the training set's per-pixel mean maps
   (normals averaged as vectors and renormalised), whatever the photos show.
+* :func:`truth_but` — a diagnostic, not a baseline: the ground truth with some maps replaced by
+  their constant means (what one map's spatial structure is worth to a metric).
 * :func:`oracle_constant` — the "oracle constant" of the evaluation protocol
   (``docs/conventions.md``, "Metrics"): each test sample gets its *own* ground truth's spatial
   mean, one value per map (normals averaged as vectors and renormalised). No estimator can know
@@ -83,4 +85,20 @@ def oracle_constant(truth: SVBRDF) -> SVBRDF:
     )
 
 
-__all__ = ["MeanMaps", "oracle_constant"]
+def truth_but(truth: SVBRDF, keys: tuple[str, ...]) -> SVBRDF:
+    """``truth`` with the maps named in ``keys`` (of normal, diffuse, specular, roughness) replaced by
+    their :func:`oracle_constant`: a diagnostic of what one map's spatial structure is worth to a
+    metric (``docs/models.md``, "What the re-render figure measures")."""
+    unknown = sorted(set(keys) - {"normal", "diffuse", "specular", "roughness"})
+    if unknown:
+        raise InputError(
+            f"truth_but: unknown map(s) {unknown}; expected normal, diffuse, specular, roughness"
+        )
+    const = oracle_constant(truth)
+    pick = {
+        k: getattr(const if k in keys else truth, k) for k in ("normal", "diffuse", "specular", "roughness")
+    }
+    return SVBRDF(**pick, source=f"{truth.source}, constant {' '.join(keys)}")
+
+
+__all__ = ["MeanMaps", "oracle_constant", "truth_but"]

@@ -243,6 +243,14 @@ def oracle_predictor(item: dict, names: list[str]) -> SVBRDF:
     return oracle_constant(_truth(item))
 
 
+def truth_but_predictor(keys: tuple[str, ...]) -> Callable[[dict, list[str]], SVBRDF]:
+    """Diagnostic: each sample's ground truth with the maps ``keys`` replaced by their constant
+    means (:func:`.baselines.truth_but`)."""
+    from .baselines import truth_but
+
+    return lambda item, names: truth_but(_truth(item), tuple(keys))
+
+
 __all__ = [
     "estimate_predictor",
     "evaluate",
@@ -252,4 +260,5 @@ __all__ = [
     "material_group",
     "model_predictor",
     "oracle_predictor",
+    "truth_but_predictor",
 ]
