@@ -81,6 +81,29 @@ def test_metal_hypothesis():
     assert float(np.abs(fit.diffuse).max()) == 0.0
 
 
+def test_a_diffuse_sample_whose_fall_off_the_model_misjudges_stays_a_dielectric():
+    """A phone photo's fall-off rarely follows the model's (its field of view is a guess): a
+    diffuse sample whose flash image falls off less steeply than modelled rises towards the edges
+    in g, which only a flat metal lobe (roughness ≥ 0.9) can follow. No lobe that flat tells a metal
+    from a diffuse surface, so the fit stays a dielectric and keeps the texture (module docstring,
+    "Metal or dielectric"); before, it read a metal of roughness 1, F0 clipped at 1, no diffuse."""
+    from ebr_mitsuba.estimate.flashfit import METAL_MARGIN, METAL_MAX_ROUGHNESS
+
+    rng = np.random.default_rng(2)
+    albedo = np.clip(0.15 + 0.05 * rng.standard_normal((RES, RES, 1)), 0, 1) * np.array([1.0, 0.8, 0.55])
+    flash, noflash, exposure = _capture(albedo.astype(np.float32), (0.04,) * 3, 0.9, ambient=0.0, meter=0.5)
+    yy, xx = np.mgrid[-1 : 1 : RES * 1j, -1 : 1 : RES * 1j]
+    flash = np.clip(flash * (1 + 0.15 * (xx**2 + yy**2))[..., None], 0, 1).astype(np.float32)
+    fit = fit_flash(flash, noflash, to_radiance=1 / exposure)
+    assert not fit.metal
+    assert fit.decision["metal_ratio"] < METAL_MARGIN  # the metal fits better ...
+    assert fit.decision["metal_roughness"] >= METAL_MAX_ROUGHNESS  # ... with a lobe too flat to tell
+    level = float(albedo[..., 0].mean())  # the fit's level is the albedo's within the fall-off error
+    assert 0.8 * level < float(fit.level[0]) < 1.3 * level
+    # the texture is kept: the fitted red channel follows the albedo's
+    assert np.corrcoef(fit.diffuse[..., 0].ravel(), albedo[..., 0].ravel())[0, 1] > 0.9
+
+
 def test_a_polished_metal_in_the_dark_stays_a_metal():
     """Away from a sharp metal highlight the flash-only image is photo noise about zero; clamping
     each pixel of flash − no-flash at 0 lifted every ring to a false albedo level that only the

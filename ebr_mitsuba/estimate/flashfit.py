@@ -32,10 +32,30 @@ measured table of ``$EBR_DATA_DIR/measured``). A second hypothesis, a metal (no 
 ``g = m · π f_s(θ; 1, r)``, m solved like L), wins when its cost is below ``METAL_MARGIN`` (½) of
 the dielectric's; its F₀ per channel is the least-squares scale of the flash-only image on the
 unit lobe ("Noise" below).
+
+Metal or dielectric. The metal hypothesis also needs a lobe that a diffuse surface cannot mimic:
+its roughness must be below ``METAL_MAX_ROUGHNESS`` (0.75). Over the near frame's view angles (0 to
+30°) the unit GGX lobe falls to 0.18 / 0.40 / 0.68 / 0.94 of its centre value at roughness 0.6 /
+0.7 / 0.8 / 0.9 and rises to 1.15 at 1, so above about 0.75 a metal with no diffuse part has the
+profile of a diffuse one, and a fall-off the model misjudges (a phone's field of view is a guess,
+a lens vignettes) then tips the choice, its free level m fitting what the dielectric's fixed F₀
+cannot. The real metal sets here have mean roughness 0.07–0.59 and the procedural metals draw
+0.08–0.55. The decision is recorded as ``FlashFit.decision`` and estimate.json's
+``flash_fit.decision``: ``{"metal_ratio"`` (the best metal's cost over the best dielectric's; below
+``METAL_MARGIN`` the metal fits better), ``"metal_level"`` (its m before the clamp to 1),
+``"metal_roughness"}``. Rough dielectrics show metal ratios near 1 (the flat metal lobe fits them as
+well as the diffuse term), true metals 2e-4–0.3. Measured (2026-12-07): of the 72 validation
+captures (``configs/data_real_val.toml``, ``configs/data_real_val2.toml``) one changes, a glossy
+facade set (roughness 0.057, F₀ 0.084, diffuse 0.004) read as a metal of roughness 0.78 (metal
+ratio 3e-5): its mean per-map RMSE went 0.2095 → 0.0455, the second set's mean 0.0433 → 0.0399
+(roughness 0.0873 → 0.0742), the first set's unchanged (0.0436); on the real flash-only photos of
+``ebr gallery`` a tan plaster and a white scratched panel, metals of roughness 1 with F₀ clipped at
+1 and no diffuse map before, are dielectrics with their texture now.
 Known failure: a high-contrast two-tone texture without a visible highlight (e.g. a 0.55 / 0.1
 checker of roughness 0.3–0.6 seen in EXR, no clipping) makes the ring statistics jump between the
 tones (less with ``trimmed`` than with ``median``), which can let the metal hypothesis win
-(diffuse 0); ``--no-flash-fit`` avoids it.
+(diffuse 0); ``--no-flash-fit`` avoids it. A dark stone with light patches (a flash-only photo of
+``ebr gallery``) still reads as a metal of roughness 0.59.
 
 The diffuse map is the level times a texture pattern: the flash photo with the fitted lobe
 removed, divided by its own local mean over a box of ``pattern`` × the image side (grey, so the
@@ -342,6 +362,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -354,6 +375,7 @@ from ..typedconfig import config, option
 __all__ = ["FarPair", "FlashFit", "FlashFitConfig", "fit_flash"]
 
 METAL_MARGIN = 0.5  # the metal hypothesis wins when its cost is below this × the dielectric's
+METAL_MAX_ROUGHNESS = 0.75  # ... and its roughness below this (a flatter lobe is a diffuse surface's twin)
 NOFLASH_MIN = 2e-3  # no-flash photo mean below which its rings are not read (too dark: noise)
 P_RING_MIN = 0.2  # a ring's albedo share read off the no-flash shot is kept within [0.2, 5]
 TRIM = 0.1  # the ring statistic (and the "trimmed" level): the mean of the middle 80 % of the values
@@ -488,6 +510,7 @@ class FlashFit:
     misfit: float | None = None  # the kept profile's ring residual (module docstring, "Misfit")
     pixel_median: dict | None = None  # the pixel-median reading ("The pixel-median reading"), or None
     roughness_map: np.ndarray | None = None  # (H, W): set by with_network_roughness, else constant
+    decision: dict | None = None  # the metal-or-dielectric decision: {"metal_ratio", "metal_level"}
 
     def maps(self, normal: np.ndarray, source: str = "flash fit"):
         """The fitted maps as an :class:`~ebr_mitsuba.svbrdf.SVBRDF` with ``normal`` (H, W, 3):
@@ -559,6 +582,7 @@ class FlashFit:
             "relief": self.relief,
             "misfit": None if self.misfit is None else float(f"{self.misfit:.3g}"),
             "pixel_median": self.pixel_median,
+            "decision": self.decision,
             "roughness_from": "network" if self.roughness_map is not None else "fit",
         }
 
@@ -630,11 +654,26 @@ def _level(ratio: torch.Tensor, ok: torch.Tensor, lobe: torch.Tensor, statistic:
     return ratio[clean].mean(0).clamp(1e-4, 1.0)
 
 
-def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, opts, far=None):
-    """The roughness of lowest cost, whether the metal hypothesis wins, the grid and its costs,
-    whether the far rings were used, the relief record and the kept profile's misfit (None: a
-    metal or the far pair) (module docstring); ``saturated`` (H, W) bool; ``far``:
-    None or a :class:`FarPair` (its rings are the near rings' pixels, "The far pair")."""
+class _Profile(NamedTuple):
+    """What :func:`_profile` read off the rings."""
+
+    roughness: float  # of lowest cost (the relief's sharp lobe, the mean with the median reading)
+    metal: bool  # the metal hypothesis won
+    grid: np.ndarray  # (R,) roughness grid
+    costs: np.ndarray  # (R,) the kept hypothesis's costs
+    far_pair: bool  # the far rings were used
+    relief: dict | None
+    misfit: float | None  # None: a metal or the far pair
+    median: dict | None  # the pixel-median reading's record
+    metal_ratio: float  # best metal cost / best dielectric cost (near rings; metal below METAL_MARGIN)
+    metal_level: float  # the best metal's F0 level m on the rings, before its clamp to [1e-4, 1]
+    metal_roughness: float  # the best metal's roughness
+
+
+def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, opts, far=None) -> _Profile:
+    """The ring profile's reading (:class:`_Profile`, module docstring); ``saturated`` (H, W)
+    bool; ``far``: None or a :class:`FarPair` (its rings are the near rings' pixels, "The far
+    pair")."""
 
     flash = np.asarray(flash, np.float64)
     noflash = np.asarray(noflash, np.float64)
@@ -751,6 +790,7 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
     metal_costs = torch.zeros(len(grid), dtype=torch.float64)
     diff_costs = torch.zeros(len(grid), dtype=torch.float64)
     metal_diff_costs = torch.zeros(len(grid), dtype=torch.float64)
+    metal_levels = torch.zeros(len(grid), dtype=torch.float64)  # m before its clamp
     s_rings = torch.zeros(len(grid), opts.bins, dtype=torch.float64)
     levels = torch.zeros(len(grid), dtype=torch.float64)  # each single lobe's level
     for i, r in enumerate(grid.tolist()):
@@ -765,7 +805,8 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
         extra = floor + saturation_cost(level + s_pixels)
         costs[i], fits[i], levels[i] = fit + extra, fit, level
         unit_ring = s_ring / opts.f0
-        m = (ring_med[usable] / unit_ring[usable].clamp_min(1e-12)).median().clamp(1e-4, 1.0)
+        metal_levels[i] = (ring_med[usable] / unit_ring[usable].clamp_min(1e-12)).median()
+        m = metal_levels[i].clamp(1e-4, 1.0)
         metal_extra = floor_cost(m * unit_ring, ring_scale) + saturation_cost(m * s_pixels / opts.f0)
         metal_costs[i] = ((ring_med[usable] - m * unit_ring[usable]) / ring_scale).pow(2).mean() + metal_extra
         if use_far:  # the same hypotheses judged on near − far: the albedo's rings cancel
@@ -776,13 +817,29 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
             mcd = ((observed_diff - md.clamp(1e-4, 1.0) * unit_diff) / ring_scale).pow(2).mean()
             metal_diff_costs[i] = mcd + metal_extra
     best, best_metal = int(torch.argmin(costs)), int(torch.argmin(metal_costs))
-    metal = bool(metal_costs[best_metal] < METAL_MARGIN * costs[best])  # decided on the near rings
+    metal_ratio = float(metal_costs[best_metal] / costs[best].clamp_min(1e-30))
+    metal_level = float(metal_levels[best_metal])
+    metal_roughness = float(grid[best_metal])
+    # decided on the near rings ("Metal or dielectric")
+    metal = metal_ratio < METAL_MARGIN and metal_roughness < METAL_MAX_ROUGHNESS
     if use_far:  # the roughness read off near − far (module docstring, "The far pair")
         costs, metal_costs = diff_costs, metal_diff_costs
         best, best_metal = int(torch.argmin(costs)), int(torch.argmin(metal_costs))
     if metal:
         r_metal = float(grid[best_metal])
-        return r_metal, True, grid.numpy(), metal_costs.numpy(), bool(far_use.any()), None, None, None
+        return _Profile(
+            r_metal,
+            True,
+            grid.numpy(),
+            metal_costs.numpy(),
+            use_far,
+            None,
+            None,
+            None,
+            metal_ratio,
+            metal_level,
+            metal_roughness,
+        )
     r_best, relief = float(grid[best]), None
     misfit = None if use_far else float(fits[best])  # near rings only ("Misfit")
     if opts.relief:
@@ -800,7 +857,19 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
         median = {"roughness": round(r_med, 4), "profile": round(r_best, 4), "used": used}
         if used:
             r_best = 0.5 * (r_best + r_med)
-    return r_best, False, grid.numpy(), costs.numpy(), bool(far_use.any()), relief, misfit, median
+    return _Profile(
+        r_best,
+        False,
+        grid.numpy(),
+        costs.numpy(),
+        use_far,
+        relief,
+        misfit,
+        median,
+        metal_ratio,
+        metal_level,
+        metal_roughness,
+    )
 
 
 def _median_reading(g, p_pixel, ring, ok, bins: int, grid, lobe_pixels, level: float) -> float:
@@ -1068,9 +1137,14 @@ def fit_flash(
         far = None if far is None else far.shrunk(f)
     else:
         small = (flash, noflash, saturated)
-    r_fit, metal, grid, costs, used_far, relief, misfit, median = _profile(
-        *small, to_radiance, intensity, camera, clip, opts, far
-    )
+    prof = _profile(*small, to_radiance, intensity, camera, clip, opts, far)
+    r_fit, metal, grid, costs, used_far = prof.roughness, prof.metal, prof.grid, prof.costs, prof.far_pair
+    relief, misfit, median = prof.relief, prof.misfit, prof.median
+    decision = {
+        "metal_ratio": float(f"{prof.metal_ratio:.3g}"),
+        "metal_level": float(f"{prof.metal_level:.3g}"),
+        "metal_roughness": round(prof.metal_roughness, 4),
+    }
 
     # the maps at full size (float32)
     fl = torch.from_numpy(flash).reshape(-1, 3)
@@ -1099,6 +1173,7 @@ def fit_flash(
             metal=True,
             specular_rgb=f0_rgb.numpy().astype(np.float32),
             far_pair=used_far,
+            decision=decision,
         )
     del signed
     s_pix = lobe(r_fit, opts.f0)  # g units
@@ -1131,4 +1206,5 @@ def fit_flash(
         relief=relief,
         misfit=misfit,
         pixel_median=median,
+        decision=decision,
     )
