@@ -943,6 +943,11 @@ def test_near_model_on_a_near_far_capture(tmp_path, capsys):
     assert summary["capture"] == "near-far"
     assert any("near captures only" in w for w in summary["warnings"])
     assert summary["flash_fit"] is not None and 0.0 < summary["flash_fit"]["roughness"] <= 1.0
+    decision = summary["flash_fit"]["decision"]  # the metal-or-dielectric decision, recorded
+    assert set(decision) == {"metal_ratio", "metal_level", "metal_roughness"}
+    assert summary["flash_fit"]["metal"] == (
+        decision["metal_ratio"] < 0.5 and decision["metal_roughness"] < 0.75
+    )
     assert (out / "renders" / "far_flash.exr").is_file() or any(out.rglob("*far_flash*"))
 
 

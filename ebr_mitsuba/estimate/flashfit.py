@@ -299,7 +299,9 @@ flattened 0.040, with a constant roughness map 0.091, with both 0.005. The relie
 and the far pair cancels much of it: on the 22 near-far captures the photos' error is 0.067 from
 the near pair and 0.025 with the far pair (noise-free true maps 0.072 → 0.035). These figures
 are from before the pixel-median reading; with it the bench reads 0.101 (noise-free) and 0.116
-(photos), near-far 0.063 → 0.025 (noise-free 0.072 → 0.035).
+(photos), near-far 0.063 → 0.025 (noise-free 0.072 → 0.035); with the metal rule ("Metal or
+dielectric") 0.093 and 0.088, near-far 0.063 → 0.025 (noise-free 0.042 → 0.035: a rock's
+noise-free near renders had read as a metal of roughness 0.85).
 
 Tried and dropped (2026-12-06), both on ``configs/data_real_val.toml``: (i) a roughness per
 albedo cluster (the pixels split at the median of the fitted diffuse map's log-luminance, each
