@@ -249,36 +249,6 @@ def test_network_diffuse_is_scaled_to_the_level_and_blended():
     assert metal.metal and float(np.abs(metal.with_network_diffuse(network, 0.5).diffuse).max()) == 0.0
 
 
-def test_after_a_misfit_the_network_diffuse_takes_over_under_the_highlight():
-    """Once the network's roughness replaces a misfitting profile's, the network's diffuse map
-    replaces the photo pattern as far as the fitted lobe outshines the albedo (module docstring,
-    "Under the highlight"); a trusted fit keeps the plain blend."""
-    rng = np.random.default_rng(6)
-    albedo = np.clip(0.3 + 0.05 * rng.standard_normal((RES, RES, 1)), 0, 1).repeat(3, -1).astype(np.float32)
-    flash, noflash, exposure = _capture(albedo, (0.04,) * 3, 0.15)
-    fit = fit_flash(flash, noflash, to_radiance=1 / exposure)
-    share = fit.lobe_share
-    assert share.shape == (RES, RES) and share.max() > 1.0 and np.median(share) < 0.05
-    network = 2.0 * albedo[::-1]  # another texture, so the two sources can be told apart
-    plain = fit.with_network_diffuse(network, 0.5).diffuse
-    only_net = fit.with_network_diffuse(network, 1.0).diffuse
-    np.testing.assert_allclose(plain, 0.5 * fit.diffuse + 0.5 * only_net, atol=1e-6)
-    swapped = fit.with_network_roughness(np.full((RES, RES), 0.3, np.float32))
-    blended = swapped.with_network_diffuse(network, 0.5).diffuse
-    core, far = share >= 1.0, share < 1e-3
-    np.testing.assert_allclose(blended[core], only_net[core], atol=1e-6)
-    np.testing.assert_allclose(blended[far], plain[far], atol=2e-3)
-    off = fit_flash(flash, noflash, to_radiance=1 / exposure, options=FlashFitConfig(lobe_blend=False))
-    assert off.lobe_share is None
-    np.testing.assert_allclose(
-        off.with_network_roughness(np.full((RES, RES), 0.3, np.float32))
-        .with_network_diffuse(network, 0.5)
-        .diffuse,
-        plain,
-        atol=1e-6,
-    )
-
-
 def test_large_photos_are_fitted_on_an_area_averaged_copy():
     """fit_size below the photo: the profile runs on a 2× area-averaged copy and finds the same
     roughness; the maps keep the photo's size."""

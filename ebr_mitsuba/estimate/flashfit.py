@@ -228,18 +228,6 @@ validation set (``configs/data_real_val2.toml``, 48 other captures, chosen after
 the fallback held: roughness RMSE 0.0998 → 0.0939, mean per-map RMSE 0.0472 → 0.0458; on the
 test split it did not (``docs/models.md``: 0.0640 → 0.0653).
 
-Under the highlight. The photo pattern is the flash photo with the fitted lobe taken out, so
-where the lobe outshines the albedo the pattern is mostly the lobe's error: a lobe the rings do not
-describe (a misfit) leaves a dark hole or a bright halo around the mirror point (a glittering
-terrazzo of ``ebr gallery``, misfit 0.021: a dark disc a third of the frame wide). After the misfit
-fallback the network's diffuse map therefore takes over from the photo pattern as the fitted
-lobe's share of the grey level ``s(x) = π f_s(θ(x)) / mean(L)`` rises: weight ``w + (1 − w) ·
-min(s, 1)`` instead of ``w`` (``lobe_blend``, default on; ``FlashFit.lobe_share``). Chosen on the
-validation captures (misfit ones: 4 of 24 and 4 of 48): diffuse RMSE 0.04595 → 0.04547 and
-0.02927 → 0.02923 (better in 6 of the 8, acg_Tiles011 0.0593 → 0.0481). Applied to every capture
-it was neutral (0.04594 / 0.02935), and ramps that start at s = 0.25–2 gave 0.0454–0.0457 /
-0.02929–0.02943: a lobe that fits leaves no hole to fill.
-
 ``ebr estimate`` runs the fit by default after the network (``--no-flash-fit``: the network's
 maps) and keeps the network's normals; ``ebr bench models`` scores both on the test split
 (``docs/models.md``).
@@ -489,12 +477,6 @@ class FlashFitConfig:
         "near shots alone: the roughness is the mean of the profile's and a second reading off the "
         'ring medians of each pixel\'s residual (module docstring, "The pixel-median reading")',
     )
-    lobe_blend: bool = option(
-        True,
-        "when the profile misfits (the network's roughness kept), the network's diffuse map takes over "
-        "from the photo pattern as far as the fitted lobe outshines the albedo (module docstring, "
-        '"Under the highlight")',
-    )
 
     def __post_init__(self):
         from ..typedconfig import check
@@ -531,7 +513,6 @@ class FlashFit:
     pixel_median: dict | None = None  # the pixel-median reading ("The pixel-median reading"), or None
     roughness_map: np.ndarray | None = None  # (H, W): set by with_network_roughness, else constant
     decision: dict | None = None  # the metal-or-dielectric decision: {"metal_ratio", "metal_level"}
-    lobe_share: np.ndarray | None = None  # (H, W) the fitted lobe over the grey level ("Under the highlight")
 
     def maps(self, normal: np.ndarray, source: str = "flash fit"):
         """The fitted maps as an :class:`~ebr_mitsuba.svbrdf.SVBRDF` with ``normal`` (H, W, 3):
@@ -565,9 +546,7 @@ class FlashFit:
     def with_network_diffuse(self, network_diffuse: np.ndarray, weight: float) -> FlashFit:
         """The fit with its diffuse map blended with a network's (H, W, 3) diffuse map, scaled per
         channel to the fitted level: ``(1 − weight) · diffuse + weight · level / mean(net) · net``
-        (module docstring); after :meth:`with_network_roughness` (a misfit) the weight rises to 1 as
-        the fitted lobe's share of the level ``lobe_share`` does ("Under the highlight"); a metal
-        keeps no diffuse."""
+        (module docstring); a metal keeps no diffuse."""
         net = np.asarray(network_diffuse, np.float32)
         if net.shape != self.diffuse.shape:
             raise InputError(
@@ -575,11 +554,7 @@ class FlashFit:
             )
         scale = self.level / np.maximum(net.reshape(-1, 3).mean(0), 1e-4)
         scaled = np.clip(net * scale[None, None, :], 0.0, 1.0)
-        w = np.float32(weight)
-        if self.lobe_share is not None and self.roughness_map is not None:  # "Under the highlight"
-            share = np.clip(self.lobe_share, 0.0, 1.0)[..., None]
-            w = weight + (1.0 - weight) * share
-        blend = ((1.0 - w) * self.diffuse + w * scaled).astype(np.float32)
+        blend = ((1.0 - weight) * self.diffuse + weight * scaled).astype(np.float32)
         return replace(self, diffuse=blend)
 
     def with_normals(self, normal: np.ndarray, camera=(0.0, 0.0, NEAR_DISTANCE)) -> FlashFit:
@@ -1219,9 +1194,6 @@ def fit_flash(
     if max(h, w) > NETWORK_WEIGHT_SIZE and opts.pattern_detail:  # module docstring, "Detail"
         pattern = _detail_shrunk(pattern, _grey_pattern(noflash, radius), ~saturated)
     diffuse = np.clip(level_rgb.numpy()[None, None, :] * lows * pattern[..., None], 0.0, 1.0)
-    lobe_share = None
-    if opts.lobe_blend:
-        lobe_share = (s_pix / level_rgb.mean().clamp_min(1e-6)).reshape(h, w).numpy().astype(np.float32)
     return FlashFit(
         roughness=r_fit,
         f0=opts.f0,
@@ -1237,5 +1209,4 @@ def fit_flash(
         misfit=misfit,
         pixel_median=median,
         decision=decision,
-        lobe_share=lobe_share,
     )
