@@ -228,6 +228,15 @@ validation set (``configs/data_real_val2.toml``, 48 other captures, chosen after
 the fallback held: roughness RMSE 0.0998 → 0.0939, mean per-map RMSE 0.0472 → 0.0458; on the
 test split it did not (``docs/models.md``: 0.0640 → 0.0653).
 
+Tried and dropped (2026-12-07): after the misfit fallback, letting the network's diffuse map take
+over from the photo pattern as the fitted lobe's share of the level rises (weight ``w + (1 − w) ·
+min(s, 1)``, s = π f_s / mean(L)), to fill the dark hole an untrusted lobe leaves at the mirror
+point (a glittering terrazzo of ``ebr gallery``, misfit 0.021). On the validation captures' 8
+misfits the diffuse RMSE went 0.04595 → 0.04547 and 0.02927 → 0.02923 (applied to every capture:
+neutral), but on the gallery's real photos the network's map under the highlight is a dark
+reddish blob of its own, and the input's re-render got worse in 10 of 13 photos (0.387 → 0.426 on
+the terrazzo, 0.543 → 0.612 on a cracked plaster).
+
 ``ebr estimate`` runs the fit by default after the network (``--no-flash-fit``: the network's
 maps) and keeps the network's normals; ``ebr bench models`` scores both on the test split
 (``docs/models.md``).
