@@ -436,6 +436,7 @@ def _check_outputs(out: Path, summary: dict, flash_only: bool = False, far: bool
     assert list((out / "novel").glob("*.png"))
     html = (out / "report.html").read_text()
     assert 'src="data:image/png;base64,' in html and 'src="http' not in html and 'src="maps' not in html
+    assert ("How the maps were read" in html) == (summary.get("flash_fit") is not None)
     for f in summary["files"]:
         assert (out / f).exists(), f
     assert set(summary["timings"]) >= {"inputs", "model", "maps", "rerender", "outputs", "report"}
@@ -1038,3 +1039,31 @@ def test_phone_far_pair_needs_the_far_flash_ratio(tmp_path, capsys, fake_net):
     code, _, err = _estimate([*args[:4], "--far-flash-ratio", 1, "--out", tmp_path / "bad"], capsys)
     _assert_refused(code, err, tmp_path / "bad")
     assert "--far-flash-ratio needs --far-flash" in err
+
+
+def test_report_says_how_the_flash_fit_read_the_maps():
+    from ebr_mitsuba.estimate.report import flash_fit_rows
+
+    fit = {
+        "roughness": 0.41,
+        "specular": [0.04, 0.04, 0.04],
+        "diffuse_level": [0.3, 0.2, 0.1],
+        "metal": False,
+        "far_pair": False,
+        "relief": None,
+        "misfit": 0.0002,
+        "pixel_median": {"roughness": 0.4, "profile": 0.42, "used": True},
+        "decision": {"metal_ratio": 0.3, "metal_level": 0.9, "metal_roughness": 1.0},
+        "roughness_from": "fit",
+    }
+    rows = dict((k, v) for k, v in flash_fit_rows(fit))
+    assert rows["material read as"].startswith("dielectric")
+    assert (
+        "0.3 (a metal needs below 0.5" in rows["metal or dielectric"]
+        and "roughness 1" in rows["metal or dielectric"]
+    )
+    assert "pixel-median reading's 0.4" in rows["roughness"]
+    net = flash_fit_rows({**fit, "roughness_from": "network", "misfit": 0.0071})
+    assert "the network's map: the profile misfits (ring residual 0.0071 > 0.003)" in dict(net)["roughness"]
+    metal = dict(flash_fit_rows({**fit, "metal": True, "pixel_median": None, "specular": [0.9, 0.6, 0.3]}))
+    assert metal["material read as"].startswith("metal") and metal["specular F0 (RGB)"] == "0.9, 0.6, 0.3"

@@ -1,12 +1,12 @@
 """``report.html``: one self-contained page (every picture embedded as a base64 PNG) per estimate.
 
 Sections: summary and input checks (warnings), the inputs, the maps (and the network's maps
-before refinement), the lighting (hemisphere and lat-long pictures of the SGs, exemplars; for a
-multi-view estimate the per-pixel SGs and the views' in-frame weights), the
-re-renders beside the photos and the residuals with their errors, the refinement (errors before
-and after, loss curve), renders under novel lights, the per-map errors against ground truth when
-known (``ebr demo``), and the time per stage. It reads the PNGs the pipeline wrote into the
-output directory and the summary dict (``estimate.json``).
+before refinement), how the flash-profile fit read them, the lighting (hemisphere and lat-long
+pictures of the SGs, exemplars; for a multi-view estimate the per-pixel SGs and the views'
+in-frame weights), the re-renders beside the photos and the residuals with their errors, the
+refinement (errors before and after, loss curve), renders under novel lights, the per-map errors
+against ground truth when known (``ebr demo``), and the time per stage. It reads the PNGs the
+pipeline wrote into the output directory and the summary dict (``estimate.json``).
 """
 
 from __future__ import annotations
@@ -153,6 +153,54 @@ def _loss_svg(history: list, width: int = 420, height: int = 140) -> str:
     )
 
 
+def flash_fit_rows(fit: dict) -> list[list]:
+    """The flash-profile fit's record (``estimate.json``'s ``flash_fit``) as (what, value) rows in
+    words: what the roughness, specular and albedo level were read as, and how sure the
+    metal-or-dielectric decision was (docs/estimate.md, "The flash-profile fit")."""
+    kind = "metal (no diffuse part)" if fit.get("metal") else "dielectric (F0 0.04 and a diffuse part)"
+    rows = [["material read as", kind]]
+    decision = fit.get("decision")
+    if decision:
+        ratio, rough = decision.get("metal_ratio"), decision.get("metal_roughness")
+        text = f"best metal's ring cost ÷ best dielectric's: {_fmt(ratio, 3)} (a metal needs below 0.5"
+        text += f" and a lobe sharper than roughness 0.75; its roughness {_fmt(rough, 3)})"
+        rows.append(["metal or dielectric", text])
+    source = fit.get("roughness_from", "fit")
+    how = "the flash profile"
+    if source == "network":
+        how = f"the network's map: the profile misfits (ring residual {_fmt(fit.get('misfit'), 3)} > 0.003)"
+    elif fit.get("far_pair"):
+        how = "near − far rings (the far pair)"
+    elif fit.get("relief"):
+        how = "the sharp lobe of a two-lobe profile (relief read as the broad one)"
+    elif (fit.get("pixel_median") or {}).get("used"):
+        pm = fit["pixel_median"]
+        how = (
+            f"mean of the profile's {_fmt(pm['profile'], 3)} and the pixel-median reading's "
+            f"{_fmt(pm['roughness'], 3)}"
+        )
+    rows.append(["roughness", f"{_fmt(fit.get('roughness'), 3)}, from {how}"])
+    rows.append(["specular F0 (RGB)", ", ".join(_fmt(x, 3) for x in fit.get("specular", []))])
+    rows.append(["albedo level (RGB)", ", ".join(_fmt(x, 3) for x in fit.get("diffuse_level", []))])
+    return rows
+
+
+def _flash_fit_section(fit: dict | None, shading: dict | None) -> str:
+    if not fit:
+        return ""
+    rows = flash_fit_rows(fit)
+    if shading is not None:
+        normals = "the network's (a glossy sample: glints would mislead the shading fit)"
+        if shading.get("applied"):
+            normals = "shading normals: the albedo texture scaled by the flash / no-flash shading"
+        rows.append(["normals", normals])
+    return (
+        "<h2>How the maps were read</h2><p>The flash-profile fit after the network (estimate.json "
+        "<code>flash_fit</code>; <code>--no-flash-fit</code> keeps the network's maps).</p>"
+        + _table(["", "value"], rows, left=2)
+    )
+
+
 def render_report(out: Path, summary: dict) -> str:
     """The HTML text of the report for the estimate directory ``out`` (its PNGs must exist)."""
     out = Path(out)
@@ -273,6 +321,8 @@ def render_report(out: Path, summary: dict) -> str:
     if summary.get("refine"):
         parts.append("<p>Network maps, before refinement:</p>")
         parts.append("".join(_img(out, f"maps_network/{m}.png", f"{m} (network)") for m in MAP_NAMES))
+
+    parts.append(_flash_fit_section(summary.get("flash_fit"), summary.get("shading_normals")))
 
     parts.append("<h2>Lighting</h2>")
     if summary["capture"] == "flash-only":
