@@ -464,7 +464,7 @@ class FlashFitConfig:
     misfit_limit: float = option(
         0.003,
         "ring residual (mean squared, relative to the level) above which the fitted roughness is "
-        'replaced by the network\'s map (module docstring, "Misfit"; inf: never)',
+        'replaced by the network\'s map (module docstring, "Misfit"; 1e9: never)',
         minimum=0,
     )
     pattern_lows: bool = option(
