@@ -226,7 +226,14 @@ fit's diffuse and F0 stay): validation roughness RMSE 0.0734 → 0.0663, mean pe
 and a roughness read off the far pair, record no misfit and keep the fit. On the second
 validation set (``configs/data_real_val2.toml``, 48 other captures, chosen after this choice)
 the fallback held: roughness RMSE 0.0998 → 0.0939, mean per-map RMSE 0.0472 → 0.0458; on the
-test split it did not (``docs/models.md``: 0.0640 → 0.0653).
+test split it did not (``docs/models.md``: 0.0640 → 0.0653). Caveat (2026-12-07): both validation
+sets draw the training materials, whose roughness the network has partly memorised (its mean
+roughness scores an RMS of 0.075 against the truth there, its map an RMSE of 0.141 on the test
+split's unseen materials), so they favour any choice that leans on the network's output. On 24
+Mitsuba captures of new procedural draws (seed 7100, the validation set's maps; no memorised
+texture) two profiles misfit, and the fallback made both worse (roughness RMSE 0.0280 → 0.0465,
+0.0525 → 0.0590). The fallback stays until a validation split of real materials held out of
+training can decide it.
 
 Tried and dropped (2026-12-07): after the misfit fallback, letting the network's diffuse map take
 over from the photo pattern as the fitted lobe's share of the level rises (weight ``w + (1 − w) ·
