@@ -528,7 +528,7 @@ class FlashFit:
     misfit: float | None = None  # the kept profile's ring residual (module docstring, "Misfit")
     pixel_median: dict | None = None  # the pixel-median reading ("The pixel-median reading"), or None
     roughness_map: np.ndarray | None = None  # (H, W): set by with_network_roughness, else constant
-    decision: dict | None = None  # the metal-or-dielectric decision: {"metal_ratio", "metal_level"}
+    decision: dict | None = None  # the metal-or-dielectric decision ("Metal or dielectric")
 
     def maps(self, normal: np.ndarray, source: str = "flash fit"):
         """The fitted maps as an :class:`~ebr_mitsuba.svbrdf.SVBRDF` with ``normal`` (H, W, 3):
@@ -839,24 +839,17 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
     metal_level = float(metal_levels[best_metal])
     metal_roughness = float(grid[best_metal])
     # decided on the near rings ("Metal or dielectric")
-    metal = metal_ratio < METAL_MARGIN and metal_roughness < METAL_MAX_ROUGHNESS
+    metal = (
+        bool(metal_costs[best_metal] < METAL_MARGIN * costs[best]) and metal_roughness < METAL_MAX_ROUGHNESS
+    )
     if use_far:  # the roughness read off near − far (module docstring, "The far pair")
         costs, metal_costs = diff_costs, metal_diff_costs
         best, best_metal = int(torch.argmin(costs)), int(torch.argmin(metal_costs))
+    decision = {"metal_ratio": metal_ratio, "metal_level": metal_level, "metal_roughness": metal_roughness}
     if metal:
         r_metal = float(grid[best_metal])
         return _Profile(
-            r_metal,
-            True,
-            grid.numpy(),
-            metal_costs.numpy(),
-            use_far,
-            None,
-            None,
-            None,
-            metal_ratio,
-            metal_level,
-            metal_roughness,
+            r_metal, True, grid.numpy(), metal_costs.numpy(), use_far, None, None, None, **decision
         )
     r_best, relief = float(grid[best]), None
     misfit = None if use_far else float(fits[best])  # near rings only ("Misfit")
@@ -875,19 +868,7 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
         median = {"roughness": round(r_med, 4), "profile": round(r_best, 4), "used": used}
         if used:
             r_best = 0.5 * (r_best + r_med)
-    return _Profile(
-        r_best,
-        False,
-        grid.numpy(),
-        costs.numpy(),
-        use_far,
-        relief,
-        misfit,
-        median,
-        metal_ratio,
-        metal_level,
-        metal_roughness,
-    )
+    return _Profile(r_best, False, grid.numpy(), costs.numpy(), use_far, relief, misfit, median, **decision)
 
 
 def _median_reading(g, p_pixel, ring, ok, bins: int, grid, lobe_pixels, level: float) -> float:
