@@ -178,22 +178,34 @@ def rerenders(maps: SVBRDF, pairs: ViewLightPairs, intensity: float = DEFAULT_FL
 
 
 def rerender_metrics(
-    estimate: SVBRDF, truth: SVBRDF, pairs: ViewLightPairs, intensity: float = DEFAULT_FLASH_INTENSITY
+    estimate: SVBRDF,
+    truth: SVBRDF,
+    pairs: ViewLightPairs,
+    intensity: float = DEFAULT_FLASH_INTENSITY,
+    truth_renders: np.ndarray | None = None,
 ) -> tuple[float, float]:
-    """(re-render RMSE, mean SSIM) of ``estimate`` against ``truth`` (same grid)."""
+    """(re-render RMSE, mean SSIM) of ``estimate`` against ``truth`` (same grid); ``truth_renders``:
+    :func:`rerenders` of ``truth`` under the same pairs, when already made (several estimates of
+    one sample)."""
     from .extract.msssim import ssim_many
     from .imageio import linear_to_srgb
 
-    a, b = rerenders(estimate, pairs, intensity), rerenders(truth, pairs, intensity)
+    a = rerenders(estimate, pairs, intensity)
+    b = rerenders(truth, pairs, intensity) if truth_renders is None else truth_renders
     sa, sb = linear_to_srgb(np.clip(a, 0, 1)), linear_to_srgb(np.clip(b, 0, 1))
     return rmse(a, b), float(np.mean(ssim_many(sa, sb, data_range=1.0)))
 
 
 def sample_metrics(
-    estimate: SVBRDF, truth: SVBRDF, pairs: ViewLightPairs, intensity: float = DEFAULT_FLASH_INTENSITY
+    estimate: SVBRDF,
+    truth: SVBRDF,
+    pairs: ViewLightPairs,
+    intensity: float = DEFAULT_FLASH_INTENSITY,
+    truth_renders: np.ndarray | None = None,
 ) -> dict:
-    """``{"per_map_rmse": {...}, "rerender_rmse", "ssim"}`` of one sample."""
-    err, s = rerender_metrics(estimate, truth, pairs, intensity)
+    """``{"per_map_rmse": {...}, "rerender_rmse", "ssim"}`` of one sample (``truth_renders``: as
+    :func:`rerender_metrics`)."""
+    err, s = rerender_metrics(estimate, truth, pairs, intensity, truth_renders)
     per_map = map_rmse(estimate, truth)
     return {"per_map_rmse": {k: per_map[k] for k in MAP_KEYS}, "rerender_rmse": err, "ssim": s}
 

@@ -62,6 +62,7 @@ MEAN_MAPS = "training-set mean maps"  # the row of baseline (ii)
 PREVIOUS = "previously shipped model"  # the EBR_CANDIDATES name of baseline (iii)
 NO_EXEMPLARS = "model without exemplars"  # ... and of baseline (iv)
 MAP_NAMES = ("normal", "diffuse", "roughness", "specular")
+RERENDER_TARGET = 0.8  # issue 15: the held-out-light re-render at least 20 % below the oracle constant's
 # diagnostics, not predictors: the truth with one map's structure taken away (its constant mean)
 DIAGNOSTICS = (
     ("truth maps, constant roughness", ("roughness",)),
@@ -351,7 +352,7 @@ def _diagnostic_lines(results: dict, diagnostics: dict | None) -> list[str]:
     shares = rerender_shares(oracle["per_sample"], material_class)
     top = max(shares, key=shares.get)
     top_n = oracle["classes"][top]["n"]
-    target = 0.8 * oracle["rerender_rmse"]
+    target = RERENDER_TARGET * oracle["rerender_rmse"]
     lines = [
         "## What the re-render figure measures",
         "",
@@ -360,7 +361,8 @@ def _diagnostic_lines(results: dict, diagnostics: dict | None) -> list[str]:
         f"{100 * shares[top]:.0f} % of the oracle constant's summed error. Rows below are diagnostics, not "
         "estimators: the ground truth with one map's structure replaced by its constant mean "
         "(`ebr_mitsuba.evaluation.baselines.truth_but`), i.e. a perfect estimate of everything else. "
-        f"The acceptance asks for at most {target:.4f} (20 % below the oracle constant).",
+        f"The acceptance asks for at most {target:.4f} ({100 * (1 - RERENDER_TARGET):.0f} % below the oracle "
+        "constant).",
         "",
         f"| truth maps with … | re-render | ÷ oracle constant | {top} class re-render | mean per-map RMSE |",
         "|---|---:|---:|---:|---:|",
@@ -373,8 +375,9 @@ def _diagnostic_lines(results: dict, diagnostics: dict | None) -> list[str]:
             f"{res['rerender_rmse'] / oracle['rerender_rmse']:.2f} | "
             f"{res['classes'][top]['rerender_rmse']:.3f} | {res['per_map_rmse']['mean']:.4f} |"
         )
-    passing = [n.removeprefix("truth maps, ") for n, r in diagnostics.items() if r["rerender_rmse"] <= target]
-    failing = [n.removeprefix("truth maps, ") for n, r in diagnostics.items() if r["rerender_rmse"] > target]
+    passing, failing = [], []
+    for name, res in diagnostics.items():
+        (passing if res["rerender_rmse"] <= target else failing).append(name.removeprefix("truth maps, "))
     lines += [
         "",
         "- An estimate perfect but for "
@@ -584,11 +587,17 @@ def run(out_dir: Path | str = DEFAULT_OUT, quick: bool = False, log=print) -> Pa
             many["estimate"]["per_sample"], many["estimate + refinement"]["per_sample"]
         )
         verdict["options"] = refine_opts
-    diagnostics = {}
-    for name, keys in DIAGNOSTICS:
-        log(f"[bench models] diagnostic: {name}")
-        diagnostics[name] = evaluate(truth_but_predictor(keys), data, limit=n, seed=0, progress=progress)
-        diagnostics[name]["classes"] = group_means(diagnostics[name]["per_sample"], material_class)
+    log(f"[bench models] diagnostics: {', '.join(name for name, _ in DIAGNOSTICS)}")
+    diagnose = [(name, truth_but_predictor(keys)) for name, keys in DIAGNOSTICS]
+    diagnostics = evaluate_many(
+        lambda item, names: {name: predict(item, names) for name, predict in diagnose},
+        data,
+        limit=n,
+        seed=0,
+        progress=progress,
+    )
+    for res in diagnostics.values():
+        res["classes"] = group_means(res["per_sample"], material_class)
     near_far = near_far_results(1 if quick else 0, log)  # quick: one capture
     seconds = time.perf_counter() - t0
     import tempfile
@@ -732,9 +741,9 @@ def _acceptance(results: dict) -> list[str]:
             ),
             (f"specular RMSE {pm['specular']:.4f} ≤ 0.040", pm["specular"] <= 0.040),
             (
-                f"re-render RMSE {res['rerender_rmse']:.4f} at least 20 % below the oracle's "
-                f"{oracle['rerender_rmse']:.4f}",
-                res["rerender_rmse"] <= 0.8 * oracle["rerender_rmse"],
+                f"re-render RMSE {res['rerender_rmse']:.4f} at least {100 * (1 - RERENDER_TARGET):.0f} "
+                f"% below the oracle's {oracle['rerender_rmse']:.4f}",
+                res["rerender_rmse"] <= RERENDER_TARGET * oracle["rerender_rmse"],
             ),
             (f"normal structure {structure:.2f} ≥ 0.5 of the truth's", structure >= 0.5),
         ]

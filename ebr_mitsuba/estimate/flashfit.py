@@ -372,8 +372,9 @@ Input convention: ``flash`` and ``noflash`` are (H, W, 3) linear photo values (s
 ``clip``); ``to_radiance`` scales them to the units where the flash has intensity ``intensity``
 (the reference exposure, ``docs/conventions.md#exposure``). Cost: one pass over the image per
 roughness of the grid (98 by default), about 0.3 s at 256² on two cores (the footprints of the
-sharp lobes add about 10 %); the pixel-median reading, where it runs, about 1.1 s more (its ring
-medians per roughness and level; six validation captures: 0.25–0.31 s without, 1.35–1.46 s with).
+sharp lobes add about 10 %); the pixel-median reading, where it runs, about 0.9 s more (its ring
+medians per roughness and level, reusing the profile's lobe per pixel; 12 validation captures:
+0.29–0.30 s without, 1.15–1.34 s with; 1.35–1.46 s before the lobes were shared).
 """
 
 from __future__ import annotations
@@ -683,9 +684,10 @@ class _Profile(NamedTuple):
     relief: dict | None
     misfit: float | None  # None: a metal or the far pair
     median: dict | None  # the pixel-median reading's record
-    metal_ratio: float  # best metal cost / best dielectric cost (near rings; metal below METAL_MARGIN)
-    metal_level: float  # the best metal's F0 level m on the rings, before its clamp to [1e-4, 1]
-    metal_roughness: float  # the best metal's roughness
+    # the metal-or-dielectric decision ("Metal or dielectric"): metal_ratio (best metal cost / best
+    # dielectric cost, near rings), metal_level (its F0 level m before the clamp to [1e-4, 1]) and
+    # metal_roughness, rounded as estimate.json records them
+    decision: dict
 
 
 def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, opts, far=None) -> _Profile:
@@ -811,8 +813,12 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
     metal_levels = torch.zeros(len(grid), dtype=torch.float64)  # m before its clamp
     s_rings = torch.zeros(len(grid), opts.bins, dtype=torch.float64)
     levels = torch.zeros(len(grid), dtype=torch.float64)  # each single lobe's level
+    median_wanted = opts.pixel_median and noflash_read and not use_far  # "The pixel-median reading"
+    grid_lobes = []  # each grid roughness's lobe per pixel, for the pixel-median reading
     for i, r in enumerate(grid.tolist()):
         s_pixels = lobe_pixels(r)
+        if median_wanted:
+            grid_lobes.append(s_pixels)
         s_ring = lobe(ring_v, r)
         if use_mean:  # a lobe sharper than the central ring must show in its mean, as in the data's
             s_ring = torch.where(usable, ring_mean(s_pixels), s_ring)
@@ -835,22 +841,22 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
             mcd = ((observed_diff - md.clamp(1e-4, 1.0) * unit_diff) / ring_scale).pow(2).mean()
             metal_diff_costs[i] = mcd + metal_extra
     best, best_metal = int(torch.argmin(costs)), int(torch.argmin(metal_costs))
-    metal_ratio = float(metal_costs[best_metal] / costs[best].clamp_min(1e-30))
-    metal_level = float(metal_levels[best_metal])
     metal_roughness = float(grid[best_metal])
     # decided on the near rings ("Metal or dielectric")
     metal = (
         bool(metal_costs[best_metal] < METAL_MARGIN * costs[best]) and metal_roughness < METAL_MAX_ROUGHNESS
     )
+    decision = {
+        "metal_ratio": float(f"{float(metal_costs[best_metal] / costs[best].clamp_min(1e-30)):.3g}"),
+        "metal_level": float(f"{float(metal_levels[best_metal]):.3g}"),
+        "metal_roughness": round(metal_roughness, 4),
+    }
     if use_far:  # the roughness read off near − far (module docstring, "The far pair")
         costs, metal_costs = diff_costs, metal_diff_costs
         best, best_metal = int(torch.argmin(costs)), int(torch.argmin(metal_costs))
-    decision = {"metal_ratio": metal_ratio, "metal_level": metal_level, "metal_roughness": metal_roughness}
     if metal:
         r_metal = float(grid[best_metal])
-        return _Profile(
-            r_metal, True, grid.numpy(), metal_costs.numpy(), use_far, None, None, None, **decision
-        )
+        return _Profile(r_metal, True, grid.numpy(), metal_costs.numpy(), use_far, None, None, None, decision)
     r_best, relief = float(grid[best]), None
     misfit = None if use_far else float(fits[best])  # near rings only ("Misfit")
     if opts.relief:
@@ -860,22 +866,23 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
             r_best = relief["sharp"]
             misfit = None if use_far else relief["fit"]
     median = None
-    if opts.pixel_median and noflash_read and not use_far and relief is None:  # "The pixel-median reading"
+    if median_wanted and relief is None:
         p_pixel = nf_grey / nf_grey[~excluded].mean().clamp_min(1e-12)
         level = float(levels[best])  # the profile's level (p_ring is p_noflash without the far pair)
-        r_med = _median_reading(g, p_pixel, ring, ~excluded, opts.bins, grid, lobe_pixels, level)
+        r_med = _median_reading(g, p_pixel, ring, ~excluded, opts.bins, grid, grid_lobes, level)
         used = r_med >= MEDIAN_MIN_ROUGHNESS
         median = {"roughness": round(r_med, 4), "profile": round(r_best, 4), "used": used}
         if used:
             r_best = 0.5 * (r_best + r_med)
-    return _Profile(r_best, False, grid.numpy(), costs.numpy(), use_far, relief, misfit, median, **decision)
+    return _Profile(r_best, False, grid.numpy(), costs.numpy(), use_far, relief, misfit, median, decision)
 
 
-def _median_reading(g, p_pixel, ring, ok, bins: int, grid, lobe_pixels, level: float) -> float:
+def _median_reading(g, p_pixel, ring, ok, bins: int, grid, lobes, level: float) -> float:
     """The roughness whose lobe leaves the smallest ring medians of the per-pixel residual
     ``g − L·p(x) − lobe(x)`` ("The pixel-median reading"): ``g`` (N,) the flash-only image over
     the flat diffuse shading, ``p_pixel`` (N,) each pixel's albedo share read off the no-flash shot,
-    ``ring`` (N,) ring indices, ``ok`` (N,) the pixels read, ``lobe_pixels(r)`` the lobe per pixel;
+    ``ring`` (N,) ring indices, ``ok`` (N,) the pixels read, ``lobes`` the (N,) lobe per pixel of each
+    roughness of ``grid`` (the profile's, computed once);
     the level L is searched around the profile's ``level`` (MEDIAN_LEVELS, then finer)."""
     idx = torch.nonzero(ok).squeeze(1)
     order = idx[torch.argsort(ring[idx], stable=True)]
@@ -898,8 +905,8 @@ def _median_reading(g, p_pixel, ring, ok, bins: int, grid, lobe_pixels, level: f
 
     coarse = torch.linspace(lo * level, hi * level, steps, dtype=g.dtype)
     step = float(coarse[1] - coarse[0])
-    for r in grid.tolist():
-        base = g_r - lobe_pixels(r)[gather]  # (bins, width)
+    for r, lobe in zip(grid.tolist(), lobes):
+        base = g_r - lobe[gather]  # (bins, width)
         k = int(torch.argmin(costs(base, coarse)))
         fine = torch.linspace(float(coarse[k]) - step, float(coarse[k]) + step, steps, dtype=g.dtype)
         cost = float(costs(base, fine).min())
@@ -1138,12 +1145,7 @@ def fit_flash(
         small = (flash, noflash, saturated)
     prof = _profile(*small, to_radiance, intensity, camera, clip, opts, far)
     r_fit, metal, grid, costs, used_far = prof.roughness, prof.metal, prof.grid, prof.costs, prof.far_pair
-    relief, misfit, median = prof.relief, prof.misfit, prof.median
-    decision = {
-        "metal_ratio": float(f"{prof.metal_ratio:.3g}"),
-        "metal_level": float(f"{prof.metal_level:.3g}"),
-        "metal_roughness": round(prof.metal_roughness, 4),
-    }
+    relief, misfit, median, decision = prof.relief, prof.misfit, prof.median, prof.decision
 
     # the maps at full size (float32)
     fl = torch.from_numpy(flash).reshape(-1, 3)

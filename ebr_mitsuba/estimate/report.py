@@ -157,18 +157,25 @@ def flash_fit_rows(fit: dict) -> list[list]:
     """The flash-profile fit's record (``estimate.json``'s ``flash_fit``) as (what, value) rows in
     words: what the roughness, specular and albedo level were read as, and how sure the
     metal-or-dielectric decision was (docs/estimate.md, "The flash-profile fit")."""
-    kind = "metal (no diffuse part)" if fit.get("metal") else "dielectric (F0 0.04 and a diffuse part)"
+    from .flashfit import METAL_MARGIN, METAL_MAX_ROUGHNESS, FlashFitConfig
+
+    defaults = FlashFitConfig()
+    kind = "metal (no diffuse part)"
+    if not fit.get("metal"):
+        kind = f"dielectric (F0 {_fmt(defaults.f0)} and a diffuse part)"
     rows = [["material read as", kind]]
     decision = fit.get("decision")
     if decision:
         ratio, rough = decision.get("metal_ratio"), decision.get("metal_roughness")
-        text = f"best metal's ring cost ÷ best dielectric's: {_fmt(ratio, 3)} (a metal needs below 0.5"
-        text += f" and a lobe sharper than roughness 0.75; its roughness {_fmt(rough, 3)})"
+        text = f"best metal's ring cost ÷ best dielectric's: {_fmt(ratio, 3)} (a metal needs below "
+        text += f"{_fmt(METAL_MARGIN)} and a lobe sharper than roughness {_fmt(METAL_MAX_ROUGHNESS)}; "
+        text += f"its roughness {_fmt(rough, 3)})"
         rows.append(["metal or dielectric", text])
     source = fit.get("roughness_from", "fit")
     how = "the flash profile"
     if source == "network":
-        how = f"the network's map: the profile misfits (ring residual {_fmt(fit.get('misfit'), 3)} > 0.003)"
+        residual, limit = _fmt(fit.get("misfit"), 3), _fmt(defaults.misfit_limit)
+        how = f"the network's map: the profile misfits (ring residual {residual} > {limit})"
     elif fit.get("far_pair"):
         how = "near − far rings (the far pair)"
     elif fit.get("relief"):

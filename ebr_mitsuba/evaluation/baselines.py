@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..svbrdf import SVBRDF
+from ..svbrdf import MAP_NAMES, SVBRDF
 
 
 class MeanMaps:
@@ -89,15 +89,11 @@ def truth_but(truth: SVBRDF, keys: tuple[str, ...]) -> SVBRDF:
     """``truth`` with the maps named in ``keys`` (of normal, diffuse, specular, roughness) replaced by
     their :func:`oracle_constant`: a diagnostic of what one map's spatial structure is worth to a
     metric (``docs/models.md``, "What the re-render figure measures")."""
-    unknown = sorted(set(keys) - {"normal", "diffuse", "specular", "roughness"})
+    unknown = sorted(set(keys) - set(MAP_NAMES))
     if unknown:
-        raise InputError(
-            f"truth_but: unknown map(s) {unknown}; expected normal, diffuse, specular, roughness"
-        )
+        raise InputError(f"truth_but: unknown map(s) {unknown}; expected {', '.join(MAP_NAMES)}")
     const = oracle_constant(truth)
-    pick = {
-        k: getattr(const if k in keys else truth, k) for k in ("normal", "diffuse", "specular", "roughness")
-    }
+    pick = {k: getattr(const if k in keys else truth, k) for k in MAP_NAMES}
     return SVBRDF(**pick, source=f"{truth.source}, constant {' '.join(keys)}")
 
 

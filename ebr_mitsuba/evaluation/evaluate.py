@@ -194,8 +194,9 @@ def evaluate_many(
         estimates = predictor(item, ds.shot_names)
         seconds = time.perf_counter() - t0
         truth = _truth(item)
+        truth_renders = metrics.rerenders(truth, pairs, intensity)  # once for all the estimates
         for name, est in estimates.items():
-            row = metrics.sample_metrics(est, truth, pairs, intensity)
+            row = metrics.sample_metrics(est, truth, pairs, intensity, truth_renders)
             row.update(
                 index=i,
                 seconds=seconds,
