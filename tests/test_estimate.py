@@ -994,6 +994,9 @@ def test_shading_normals_follow_the_relief_and_can_be_switched_off(tmp_path, cap
     record = json.loads(stdout)["shading_normals"]
     assert record["applied"] is True and record["glint_ratio"] <= 1.0
     assert record["coefficient"] > 0 and record["pixels"] > 0
+    assert set(record["relief"]) == {"sky_gradient", "slope_rms", "noise_rms"} and record["relief_gain"] > 0
+    html = (tmp_path / "sn" / "report.html").read_text()
+    assert "the relief the albedo does not show" in html
     code, stdout, err = _estimate(
         [*shots, "--out", tmp_path / "net", "--no-shading-normals", "--json"], capsys
     )
