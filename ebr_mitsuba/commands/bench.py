@@ -1,6 +1,7 @@
 """Measure speed against error and write the tables and plots (docs/bench/ in a checkout).
 
-  ebr bench [renderer|generate|extract-sg|estimate|sizes|models|fivelight|mair|insert|flash-fit|all]
+  ebr bench [renderer|generate|extract-sg|estimate|sizes|models|fivelight|mair|insert|flash-fit|
+             normals|all]
             [--out DIR] [--quick] [--json]
 
 Each benchmark writes ``OUT/<name>.md`` (a Markdown table with the reference it was measured
@@ -37,7 +38,11 @@ against, and the PNG plots it links) and returns its path:
 * ``flash-fit``: the flash-profile fit's roughness on validation captures against the same fit on
   noise-free renders of their true maps, as they are and with flat normals and / or a constant
   roughness: how much of its error the single-lobe model makes (writes ``flash_fit.md``; needs
-  ``EBR_FLASHFIT_DATA`` or ``EBR_VAL_DATA``).
+  ``EBR_FLASHFIT_DATA`` or ``EBR_VAL_DATA``);
+* ``normals``: ``ebr estimate``'s shading normals on validation captures, flat, without and with the
+  relief read off the flash / no-flash ratio's residual: normal RMSE, mean per-map RMSE, held-out
+  re-render, the normals' spread, a picture (writes ``normals.md``; needs ``EBR_NORMALS_DATA`` or
+  ``EBR_VAL_DATA``).
 
 Default ``--out``: inside a checkout of ebr-mitsuba (the current directory or one above it holds
 the project's ``pyproject.toml``) the checkout's ``docs/bench`` (``docs`` for ``models``,
@@ -81,6 +86,7 @@ BENCHMARKS = (
     "mair",
     "insert",
     "flash-fit",
+    "normals",
 )
 OUTSIDE_CHECKOUT = Path("ebr-bench")
 PROJECT = "ebr-mitsuba"

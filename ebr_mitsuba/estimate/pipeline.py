@@ -178,11 +178,16 @@ class EstimateResult(dict):
     """What :func:`run_estimate` returns: the summary (the ``estimate.json`` document, a dict)
     with the estimate in memory, in the photos' units as written: ``maps`` (the final maps, as
     ``maps/``), ``network_maps`` (the network's, as ``maps_network/`` when refined; the same as
-    ``maps`` otherwise) and ``env`` (the final SG environment; None in flash-only mode)."""
+    ``maps`` otherwise), ``env`` (the final SG environment; None in flash-only mode) and
+    ``shading`` (the :class:`~.shading_normals.ShadingNormals` the normal map was made from; None
+    when the shading normals did not apply)."""
 
-    def __init__(self, summary: dict, maps: SVBRDF, network_maps: SVBRDF, env: SGEnvironment | None):
+    def __init__(
+        self, summary: dict, maps: SVBRDF, network_maps: SVBRDF, env: SGEnvironment | None, shading=None
+    ):
         super().__init__(summary)
         self.maps, self.network_maps, self.env = maps, network_maps, env
+        self.shading = shading
 
 
 def load_predictor(checkpoint: str | None) -> Predictor:
@@ -590,7 +595,7 @@ def run_estimate(
         tiles, tile, ensemble = len(pred.tiles), pred.tile, list(pred.members)
         stage("maps", t0)
 
-    flash_fit, shading = None, None
+    flash_fit, shading, shading_fit = None, None, None
     if cfg.flash_fit:
         from .flashfit import FlashFitConfig
 
@@ -622,7 +627,7 @@ def run_estimate(
             from .shading_normals import normals_for
 
             t0 = time.perf_counter()
-            shading, fitted, shrunk = normals_for(
+            shading, shading_fit = normals_for(
                 flash_fit,
                 flash_img,
                 noflash_img,
@@ -630,9 +635,10 @@ def run_estimate(
                 saturated=work_inputs.saturated,
                 log=log,
             )
-            if fitted is not None:  # the photo pattern's shading is the relief's, not the albedo's
-                flash_fit = flash_fit.with_normals(fitted, camera=(0.0, 0.0, near_distance(inputs.fov)))
-                normal, source = shrunk, "ebr estimate (shading normals, flash fit)"
+            if shading_fit is not None:  # the photo pattern's shading is the relief's, not the albedo's
+                camera = (0.0, 0.0, near_distance(inputs.fov))
+                flash_fit = flash_fit.with_normals(shading_fit.normal, camera=camera)
+                normal, source = shading_fit.map_normal(), "ebr estimate (shading normals, flash fit)"
             stage("shading normals", t0)
         if flash_fit.misfits(fit_options.misfit_limit):
             log(
@@ -795,7 +801,7 @@ def run_estimate(
         files += run_jobs(jobs, local, workers, steps)
         stage("outputs", t0)
         outputs.write_report_and_summary(tmp, summary, files, stage)
-    return EstimateResult(summary, final_maps, maps, final_env)
+    return EstimateResult(summary, final_maps, maps, final_env, shading_fit)
 
 
 __all__ = [

@@ -221,6 +221,11 @@ class ShadingNormals:
             slopes = slopes - relief_gain * self.relief.slopes  # δ = −∇h: the other sign
         return slopes_to_normals(slopes)
 
+    def map_normal(self, options: ShadingNormalsConfig | None = None) -> np.ndarray:
+        """The normal map: :meth:`shrunk` by the options' ``map_gain`` and ``relief_gain``."""
+        opts = options or ShadingNormalsConfig()
+        return self.shrunk(opts.map_gain, opts.relief_gain)
+
     def to_json(self) -> dict:
         return {
             "coefficient": round(self.coefficient, 6),
@@ -355,13 +360,14 @@ def normals_for(
     saturated: np.ndarray | None = None,
     options: ShadingNormalsConfig | None = None,
     log=None,
-) -> tuple[dict, np.ndarray | None, np.ndarray | None]:
-    """``ebr estimate``'s normals for a near pair and its :class:`~.flashfit.FlashFit`: (the
-    ``estimate.json`` record, the fitted (H, W, 3) normals for the diffuse map's shading
-    correction, the normal map: those :meth:`~ShadingNormals.shrunk` by ``map_gain``; module
-    docstring, "Shrinkage"). The normals are None when the fitted material is
-    glossy (:func:`glint_ratio` above ``glint_limit``): its flash-only image is the relief's glints,
-    which the Lambertian ratio misreads (validation: a glazed tile's normal RMSE 0.056 → 0.066)."""
+) -> tuple[dict, ShadingNormals | None]:
+    """``ebr estimate``'s shading normals for a near pair and its :class:`~.flashfit.FlashFit`:
+    (the ``estimate.json`` record, the :class:`ShadingNormals`). Its ``normal`` is what the
+    diffuse map's shading correction uses, :meth:`ShadingNormals.map_normal` the normal map
+    (module docstring, "Shrinkage", "Relief off the albedo"). The fit is None when the fitted
+    material is glossy (:func:`glint_ratio` above ``glint_limit``): its flash-only image is the
+    relief's glints, which the Lambertian ratio misreads (validation: a glazed tile's normal RMSE
+    0.056 → 0.066)."""
     opts = options or ShadingNormalsConfig()
     f0 = flash_fit.specular_rgb if flash_fit.specular_rgb is not None else np.full(3, flash_fit.f0)
     glints = glint_ratio(
@@ -374,14 +380,14 @@ def normals_for(
                 f"keeping the network's normals: a glossy sample (glint ratio {glints:.2f} > "
                 f"{opts.glint_limit:g}; estimate/shading_normals.py)"
             )
-        return record, None, None
+        return record, None
     if log is not None:
         log("fitting the normals to the flash / no-flash shading")
     fit = fit_shading_normals(flash, noflash, camera_height=camera_height, saturated=saturated, options=opts)
     record.update(fit.to_json())
     record["map_gain"] = opts.map_gain
     record["relief_gain"] = opts.relief_gain if fit.relief is not None else 0.0
-    return record, fit.normal, fit.shrunk(opts.map_gain, opts.relief_gain)
+    return record, fit
 
 
 __all__ = ["ShadingNormals", "ShadingNormalsConfig", "fit_shading_normals", "glint_ratio", "normals_for"]

@@ -92,6 +92,43 @@ def _lights_predictor(predictor: LightsPredictor) -> Callable[[dict, list[str]],
     return run
 
 
+def estimate_sample(
+    predictor, root: str | Path, index: int, refine=None, flash_fit: bool = True, far: bool = True
+):
+    """What ``ebr estimate`` makes of sample ``index`` of the data set ``root`` from its photo files
+    (:func:`estimate_predictor`, whose arguments these are): the
+    :class:`~ebr_mitsuba.estimate.pipeline.EstimateResult`, its files written into a temporary
+    directory and dropped."""
+    import tempfile
+
+    from ..data.store import sample_dirname
+    from ..estimate.pipeline import EstimateConfig, run_estimate
+    from ..estimate.refine import RefineConfig
+
+    root = Path(root)
+    meta = json.loads((root / "dataset.json").read_text())
+    nominal = float(meta["config"]["capture"]["flash_intensity"])
+    sample = root / sample_dirname(int(index))
+    record = json.loads((sample / "sample.json").read_text())
+    shots = {s["name"]: sample / s["photo"] for s in record["shots"]}
+    if "noflash" not in shots:
+        raise InputError(f"{sample}: shots {sorted(shots)}; an estimate needs a flash / no-flash pair")
+    # the flash in photo units: what capture.json states for an ebr capture directory
+    intensity = nominal * float(record["camera"]["exposure"])
+    with tempfile.TemporaryDirectory(prefix="ebr-eval-") as tmp:
+        cfg = EstimateConfig(
+            flash=str(shots["flash"]),
+            noflash=str(shots["noflash"]),
+            far_flash=str(shots["far_flash"]) if far and "far_flash" in shots else None,
+            far_noflash=str(shots["far_noflash"]) if far and "far_noflash" in shots else None,
+            out=str(Path(tmp) / "estimate"),
+            refine=refine or RefineConfig(),
+            flash_intensity=intensity,
+            flash_fit=flash_fit,
+        )
+        return run_estimate(cfg, predictor=predictor)
+
+
 def estimate_predictor(
     predictor, data: str | Path, refine=None, flash_fit: bool = True, far: bool = True
 ) -> Callable[[dict, list[str]], dict]:
@@ -106,43 +143,20 @@ def estimate_predictor(
     only, the same capture estimated as a near one).
     ``predictor``: the :class:`~ebr_mitsuba.model.predictor.Predictor` of the estimates. Each
     sample runs :func:`ebr_mitsuba.estimate.pipeline.run_estimate` into a temporary directory
-    (its files are written as by ``ebr estimate``); the maps are the ones it returns in memory
-    (``maps`` and, refined, ``network_maps``)."""
-    import tempfile
-
-    from ..data.store import sample_dirname
-    from ..estimate.pipeline import EstimateConfig, run_estimate
+    (:func:`estimate_sample`; its files are written as by ``ebr estimate``); the maps are the ones
+    it returns in memory (``maps`` and, refined, ``network_maps``)."""
     from ..estimate.refine import RefineConfig
 
     root = Path(data)
-    meta = json.loads((root / "dataset.json").read_text())
-    nominal = float(meta["config"]["capture"]["flash_intensity"])
     refine = refine or RefineConfig()
 
     def run(item: dict, names: list[str]) -> dict:
         if "noflash" not in names:
             raise InputError(f"{root}: shots {names}; the estimate predictor needs flash / no-flash pairs")
-        sample = root / sample_dirname(int(item["index"]))
-        record = json.loads((sample / "sample.json").read_text())
-        shots = {s["name"]: sample / s["photo"] for s in record["shots"]}
-        # the flash in photo units: what capture.json states for an ebr capture directory
-        intensity = nominal * float(record["camera"]["exposure"])
-        with tempfile.TemporaryDirectory(prefix="ebr-eval-") as tmp:
-            out = Path(tmp) / "estimate"
-            cfg = EstimateConfig(
-                flash=str(shots["flash"]),
-                noflash=str(shots["noflash"]),
-                far_flash=str(shots["far_flash"]) if far and "far_flash" in shots else None,
-                far_noflash=str(shots["far_noflash"]) if far and "far_noflash" in shots else None,
-                out=str(out),
-                refine=refine,
-                flash_intensity=intensity,
-                flash_fit=flash_fit,
-            )
-            result = run_estimate(cfg, predictor=predictor)
-            if refine.steps > 0:
-                return {"estimate": result.network_maps, "estimate + refinement": result.maps}
-            return {"estimate": result.maps}
+        result = estimate_sample(predictor, root, int(item["index"]), refine, flash_fit, far)
+        if refine.steps > 0:
+            return {"estimate": result.network_maps, "estimate + refinement": result.maps}
+        return {"estimate": result.maps}
 
     return run
 

@@ -1,0 +1,281 @@
+"""``ebr bench normals``: what ``ebr estimate``'s shading normals do to the maps on validation
+captures, with and without the relief read off the ratio's residual (:mod:`ebr_mitsuba.estimate.
+relief`); writes ``normals.md``, ``normals.json`` and a picture.
+
+Each capture is estimated once by ``ebr estimate`` (the shipped model, its defaults, the data set's
+known flash intensity: :func:`ebr_mitsuba.evaluation.evaluate.estimate_sample`). Its maps are then
+scored with three normal maps, everything else equal:
+
+* ``flat``: the flat normal;
+* ``albedo-following``: the shading normals without the relief reading
+  (``ShadingNormals.shrunk(map_gain)``; the default until 2026-12-07);
+* ``with relief``: the normal map ``ebr estimate`` wrote (``map_normal()``, the default).
+
+Captures whose shading normals did not apply (a metal, a glossy sample) keep the network's normals
+in all three and are counted apart. Metrics as ``ebr bench models``': normal RMSE (as (n+1)/2), the
+mean per-map RMSE, the re-render RMSE under 30 held-out lights and the normals' spread over the
+truth's (capped at 1 per capture).
+
+Inputs: ``EBR_NORMALS_DATA`` (data sets of ``ebr generate`` with near flash / no-flash shots,
+separated by ``:``; default ``EBR_VAL_DATA``): validation sets, never the test split, whose figures
+are the ``ebr estimate`` row of ``docs/models.md``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ._common import machine
+
+PAGE = "normals.md"
+VARIANTS = ("flat", "albedo-following", "with relief")
+QUICK_SAMPLES = 2
+PICTURES = 4  # captures shown: those the relief changed most (by normal RMSE)
+THUMB = 128
+COMMANDS = """\
+export EBR_DATA_DIR=../shared/data
+ebr generate configs/data_real_val.toml --out /tmp/ebr-data/real_val --workers 2
+ebr generate configs/data_real_val2.toml --out /tmp/ebr-data/real_val2 --workers 2
+EBR_NORMALS_DATA=/tmp/ebr-data/real_val:/tmp/ebr-data/real_val2 ebr bench normals  # this page"""
+
+
+def _log(msg: str) -> None:
+    print(f"[bench normals] {msg}", file=sys.stderr, flush=True)
+
+
+def data_sets() -> list[Path]:
+    text = os.environ.get("EBR_NORMALS_DATA") or os.environ.get("EBR_VAL_DATA") or ""
+    return [Path(p) for p in text.split(":") if p.strip()]
+
+
+def unavailable() -> str | None:
+    return None if data_sets() else "set $EBR_NORMALS_DATA (or $EBR_VAL_DATA); see docs/bench/normals.md"
+
+
+def spread(normal: np.ndarray) -> float:
+    """The normals' spatial spread: the mean of the x and y components' standard deviations."""
+    return float(np.mean(np.asarray(normal)[..., :2].reshape(-1, 2).std(axis=0)))
+
+
+def variant_normals(result) -> dict[str, np.ndarray]:
+    """The three normal maps of an :class:`~ebr_mitsuba.estimate.pipeline.EstimateResult` (module
+    docstring); without shading normals, the estimate's own in all three."""
+    final = np.asarray(result.maps.normal)
+    if result.shading is None:
+        return dict.fromkeys(VARIANTS, final)
+    from ..estimate.shading_normals import ShadingNormalsConfig
+
+    flat = np.zeros_like(final)
+    flat[..., 2] = 1.0
+    return {
+        "flat": flat,
+        "albedo-following": result.shading.shrunk(ShadingNormalsConfig().map_gain),
+        "with relief": final,
+    }
+
+
+def measure(roots: list[Path], limit: int = 0, progress=None) -> dict:
+    """Per capture: each variant's metrics (module docstring), the relief record and small maps for
+    the picture; per data set and over all: the means and how often the relief helped."""
+    from .. import metrics
+    from ..data.dataset import GeneratedDataset
+    from ..evaluation.evaluate import _at_size, _truth, estimate_sample
+    from ..materials import resample_svbrdf
+    from ..model.predict import load_predictor
+    from ..svbrdf import SVBRDF
+
+    predictor = load_predictor(None)
+    pairs = metrics.rerender_pairs(0)
+    rows, thumbs = [], {}
+    for root in roots:
+        if not (root / "dataset.json").is_file():
+            raise InputError(f"{root}: not a data set of ebr generate; make it with the commands in {PAGE}")
+        ds = GeneratedDataset(root)
+        intensity = float(ds.dataset["config"]["capture"]["flash_intensity"])
+        n = len(ds) if limit <= 0 else min(limit, len(ds))
+        for i in range(n):
+            item = ds[i]
+            truth = _truth(item)
+            result = estimate_sample(predictor, root, i)
+            truth_renders = metrics.rerenders(truth, pairs, intensity)
+            row = {
+                "data": root.name,
+                "index": i,
+                "material": str(ds.index["samples"][i]["material"]).split("/")[-1],
+                "read": result.shading is not None,
+                "relief": (result.get("shading_normals") or {}).get("relief"),
+            }
+            base = result.maps
+            for name, normal in variant_normals(result).items():
+                maps = SVBRDF(normal, base.diffuse, base.specular, base.roughness, source=name)
+                maps = _at_size(maps, truth.shape)  # the working size may exceed the data set's
+                m = metrics.sample_metrics(maps, truth, pairs, intensity, truth_renders)
+                row[name] = {
+                    "normal": m["per_map_rmse"]["normal"],
+                    "mean": float(np.mean(list(m["per_map_rmse"].values()))),
+                    "rerender": m["rerender_rmse"],
+                    "spread": min(spread(maps.normal) / max(spread(truth.normal), 1e-6), 1.0),
+                }
+                thumbs[(root.name, i, name)] = resample_svbrdf(maps, THUMB).normal
+            thumbs[(root.name, i, "truth")] = resample_svbrdf(truth, THUMB).normal
+            rows.append(row)
+            if progress:
+                a, b = row["albedo-following"]["normal"], row["with relief"]["normal"]
+                progress(f"{root.name} {i}: {row['material']} normal RMSE {a:.4f} -> {b:.4f}")
+    groups = {r.name: [x for x in rows if x["data"] == r.name] for r in roots}
+    groups["all"] = rows
+    summary = {name: _summary(group) for name, group in groups.items() if group}
+    return {"rows": rows, "summary": summary, "thumbs": thumbs}
+
+
+def _summary(rows: list[dict]) -> dict:
+    read = [r for r in rows if r["read"]]
+
+    def count(key: str, sign: float) -> int:
+        return int(sum(sign * (r["with relief"][key] - r["albedo-following"][key]) > 1e-5 for r in read))
+
+    return {
+        "captures": len(rows),
+        "read": len(read),
+        **{
+            v: {k: float(np.mean([r[v][k] for r in rows])) for k in ("normal", "mean", "rerender", "spread")}
+            for v in VARIANTS
+        },
+        "normal_better": count("normal", -1.0),
+        "normal_worse": count("normal", 1.0),
+        "rerender_better": count("rerender", -1.0),
+        "rerender_worse": count("rerender", 1.0),
+    }
+
+
+def _picture(result: dict, path: Path) -> list[dict]:
+    """Truth | albedo-following | with relief normals (as (n+1)/2) of the captures the relief
+    changed most; returns those rows."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    read = [r for r in result["rows"] if r["read"]]
+    change = lambda r: abs(r["with relief"]["normal"] - r["albedo-following"]["normal"])  # noqa: E731
+    shown = sorted(read, key=change, reverse=True)[:PICTURES]
+    if not shown:
+        return []
+    cols = ("truth", "albedo-following", "with relief")
+    fig, axes = plt.subplots(len(shown), 3, figsize=(6.6, 2.25 * len(shown)), squeeze=False)
+    for ax_row, r in zip(axes, shown):
+        for ax, col in zip(ax_row, cols):
+            n = result["thumbs"][(r["data"], r["index"], col)]
+            ax.imshow(np.clip((np.asarray(n) + 1) / 2, 0, 1))
+            ax.set_xticks([])
+            ax.set_yticks([])
+            label = col if col == "truth" else f"{col}: {r[col]['normal']:.4f}"
+            ax.set_title(label, fontsize=8)
+        ax_row[0].set_ylabel(f"{r['material'][:22]}", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return shown
+
+
+def _page(result: dict, roots: list[Path], seconds: float, quick: bool, shown: list[dict]) -> str:
+    lines = [
+        "# The shading normals on validation captures: with and without the relief reading",
+        "",
+        "Generated by `ebr bench normals` (`ebr_mitsuba/bench/normals.py`); do not edit by hand.",
+        f"Machine: {machine()}; took {seconds:.0f} s.",
+        "",
+    ]
+    if quick:
+        lines += [f"**Quick mode** (first {QUICK_SAMPLES} samples per data set): not the documented figures."]
+        lines.append("")
+    lines += [
+        "Each capture is estimated by `ebr estimate` (the shipped model, its defaults) and its maps "
+        "scored with three normal maps, everything else equal: *flat*; *albedo-following*, the "
+        "shading normals without the relief the albedo does not show (the default until 2026-12-07); "
+        "*with relief*, what `ebr estimate` writes ([estimate.md](../estimate.md#relief-the-albedo-does-"
+        "not-show-default)). Captures whose shading normals did not apply (a metal, a glossy sample) "
+        "keep the network's normals in all three. Metrics as in [models.md](../models.md); spread: the "
+        "normals' spatial spread over the truth's, capped at 1 per capture.",
+        "",
+        f"Data: {', '.join(f'`{r}`' for r in roots)}: validation captures (training materials and maps), "
+        "never the test split; the test split's figures are the `ebr estimate` row of "
+        "[models.md](../models.md).",
+        "",
+        "```",
+        COMMANDS,
+        "```",
+        "",
+        "| data | captures (relief read) | normals | normal RMSE | mean per-map RMSE | held-out re-render "
+        "| spread ÷ truth's |",
+        "|---|---:|---|---:|---:|---:|---:|",
+    ]
+    for name, s in result["summary"].items():
+        for v in VARIANTS:
+            c = s[v]
+            lines.append(
+                f"| {name} | {s['captures']} ({s['read']}) | {v} | {c['normal']:.5f} | {c['mean']:.5f} "
+                f"| {c['rerender']:.4f} | {c['spread']:.2f} |"
+            )
+    lines.append("")
+    for name, s in result["summary"].items():
+        lines.append(
+            f"- **{name}**: with the relief the normal RMSE is lower in {s['normal_better']} and higher in "
+            f"{s['normal_worse']} of the {s['read']} captures read (by over 1e-5), the held-out re-render "
+            f"lower in {s['rerender_better']} and higher in {s['rerender_worse']}."
+        )
+    lines.append("")
+    if shown:
+        lines += [
+            "![truth and estimated normals](normals.png)",
+            "",
+            "*Normals as (n+1)/2 of the captures the relief changed most: truth | albedo-following | "
+            "with relief (normal RMSE in the titles).*",
+            "",
+        ]
+    lines += [
+        "## Per capture",
+        "",
+        "| data | # | material | normal RMSE: flat | albedo-following | with relief | sky gradient read "
+        "| slopes rms |",
+        "|---|---:|---|---:|---:|---:|---|---:|",
+    ]
+    for r in result["rows"]:
+        rel = r["relief"] or {}
+        sky = ", ".join(f"{x:.2f}" for x in rel.get("sky_gradient", [])) if rel else "–"
+        rms = f"{rel['slope_rms']:.3f}" if rel else "–"
+        mark = "" if r["read"] else " (network's)"
+        lines.append(
+            f"| {r['data']} | {r['index']} | {r['material']}{mark} | {r['flat']['normal']:.4f} | "
+            f"{r['albedo-following']['normal']:.4f} | {r['with relief']['normal']:.4f} | {sky} | {rms} |"
+        )
+    lines.append("")
+    return "\n".join(lines)
+
+
+def run(out_dir: Path | str, quick: bool = False) -> Path:
+    """Measure every capture of the data sets (``--quick``: the first :data:`QUICK_SAMPLES` of
+    each) and write ``out_dir/normals.md`` with its JSON record and picture."""
+    import time
+
+    from ..fsutil import atomic_write_text
+
+    roots = data_sets()
+    if not roots:
+        raise InputError(unavailable())
+    t0 = time.perf_counter()
+    result = measure(roots, limit=QUICK_SAMPLES if quick else 0, progress=_log)
+    seconds = time.perf_counter() - t0
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    shown = _picture(result, out_dir / "normals.png")
+    record = {k: v for k, v in result.items() if k != "thumbs"}
+    atomic_write_text(out_dir / "normals.json", json.dumps(record, indent=1) + "\n")
+    atomic_write_text(out_dir / PAGE, _page(result, roots, seconds, quick, shown))
+    return out_dir / PAGE
