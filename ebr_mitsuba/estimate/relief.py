@@ -35,6 +35,13 @@ the rest comes from two assumptions that hold for most real surfaces:
   :data:`ITERATIONS`). Without the integrability (each pixel's posterior mean along ``a(x)``
   alone) the validation normal RMSE was 0.0434 against 0.0419 with it.
 
+Tried and not adopted (2026-12-07): turning the lighting network's lobes about the vertical so that
+their irradiance gradient points along the ``e`` read here (when ``|e|`` ≥ 0.3), for ``ebr
+insert``. On ``ebr bench insert``'s diffuse spheres (composited, ratio to the noise floor) three
+insertions got better (a procedural leather 6.4 → 5.2×, two barks 9.1 → 7.8× and 9.1 → 8.9×), one
+worse (a procedural tile set 1.7 → 2.6×), the others unchanged: ``e`` is about half the true
+length, and one gradient does not place a light.
+
 What it cannot see: relief under a sky whose gradient is parallel to the flash's everywhere (then
 one component is all any pixel sees), relief finer than the pixel noise allows, and the slopes'
 low frequencies (``r`` is high-passed with the ratio).

@@ -109,8 +109,9 @@ pipeline (``ebr bench models``' metrics; the relief read where the shading norma
   0.17 → 0.25, 0.1897 → 0.1893, 0.05328 → 0.05254.
 
 (better / worse: by over 1e-5; on the two validation sets the held-out re-render was lower in 37
-of the 57 captures read and higher in 3: ``ebr bench normals``, ``docs/bench/normals.md``.) The relief's gain and prior weight were chosen on the first set, from the reading
-without the pipeline: gains 0.5 / 0.6 / 0.75 gave 0.0419 / 0.0417 / 0.0420 at prior weight 1,
+of the 57 captures read and higher in 3: ``ebr bench normals``, ``docs/bench/normals.md``.) The
+relief's gain and prior weight were chosen on the first set, from the reading without the
+pipeline: gains 0.5 / 0.6 / 0.75 gave 0.0419 / 0.0417 / 0.0420 at prior weight 1,
 weights 0.5 / 2 gave 0.0417 / 0.0428 at gain 0.5; the per-pixel reading without integrability
 0.0434. The largest gains are relief-heavy sets whose albedo is uniform (a rock 0.1034 → 0.0800,
 a ground set 0.0475 → 0.0278), the largest loss a brick wall (0.1125 → 0.1191).
