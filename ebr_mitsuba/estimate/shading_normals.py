@@ -116,6 +116,11 @@ weights 0.5 / 2 gave 0.0417 / 0.0428 at gain 0.5; the per-pixel reading without 
 0.0434. The largest gains are relief-heavy sets whose albedo is uniform (a rock 0.1034 → 0.0800,
 a ground set 0.0475 → 0.0278), the largest loss a brick wall (0.1125 → 0.1191).
 
+Tried and not adopted (2026-12-07): the relief's slopes in the diffuse map's shading correction too
+(the fitted slopes plus g × the relief's): diffuse RMSE 0.04595 / 0.04593 / 0.04597 on the first
+validation set for g = 0 / 0.5 / 1, 0.02927 / 0.02928 / 0.02937 on the second, 0.03440 / 0.03454 /
+0.03485 on the procedural draws.
+
 What it cannot see: relief whose albedo correlation changes sign within the sample (one ``c`` per
 capture), relief under a sky whose gradient is parallel to the flash's tilt everywhere (one slope
 component per pixel, the same one), and relief finer than the photo's noise. A metal (no
