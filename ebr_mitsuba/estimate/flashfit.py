@@ -232,8 +232,9 @@ roughness scores an RMS of 0.075 against the truth there, its map an RMSE of 0.1
 split's unseen materials), so they favour any choice that leans on the network's output. On 24
 Mitsuba captures of new procedural draws (seed 7100, the validation set's maps; no memorised
 texture) two profiles misfit, and the fallback made both worse (roughness RMSE 0.0280 → 0.0465,
-0.0525 → 0.0590). The fallback stays until a validation split of real materials held out of
-training can decide it.
+0.0525 → 0.0590); on 72 further draws (seed 7300, 2026-12-07) seven misfit and the fallback was
+better in four (their mean roughness RMSE 0.2368 → 0.2314): neutral. The fallback stays until a
+validation split of real materials held out of training can decide it.
 
 Tried and dropped (2026-12-07): after the misfit fallback, letting the network's diffuse map take
 over from the photo pattern as the fitted lobe's share of the level rises (weight ``w + (1 − w) ·
