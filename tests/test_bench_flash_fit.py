@@ -7,6 +7,7 @@ import json
 
 import numpy as np
 import pytest
+from bench_checks import assert_needs_data_sets
 
 from ebr_mitsuba.bench import flash_fit as bench
 from ebr_mitsuba.errors import InputError
@@ -77,14 +78,7 @@ def test_quick_page_on_the_tiny_set_and_refusals(tiny, tmp_path, monkeypatch):
         assert f"| {col} |" in page
     assert not any(col.endswith(bench.FAR) for col in record["summary"])  # a near set: no far pair
 
-    monkeypatch.setenv("EBR_FLASHFIT_DATA", str(tmp_path / "missing"))
-    with pytest.raises(InputError, match="not a data set"):
-        bench.run(tmp_path / "out", quick=True)
-    monkeypatch.delenv("EBR_FLASHFIT_DATA")
-    monkeypatch.delenv("EBR_VAL_DATA", raising=False)
-    assert "EBR_FLASHFIT_DATA" in bench.unavailable()
-    with pytest.raises(InputError, match="EBR_FLASHFIT_DATA"):
-        bench.run(tmp_path / "out", quick=True)
+    assert_needs_data_sets(bench, "EBR_FLASHFIT_DATA", tmp_path, monkeypatch)
     assert not (tmp_path / "out").exists()
 
 

@@ -7,10 +7,9 @@ import json
 from types import SimpleNamespace
 
 import numpy as np
-import pytest
+from bench_checks import assert_needs_data_sets
 
 from ebr_mitsuba.bench import normals as bench
-from ebr_mitsuba.errors import InputError
 from ebr_mitsuba.estimate.relief import Relief
 from ebr_mitsuba.estimate.shading_normals import ShadingNormals
 from ebr_mitsuba.svbrdf import SVBRDF
@@ -67,11 +66,4 @@ def test_quick_page_on_the_tiny_set_and_refusals(tiny, tmp_path, monkeypatch):
     assert set(record["summary"]) == {tiny.name, "all"}
     assert record["summary"]["all"]["captures"] == bench.QUICK_SAMPLES
 
-    monkeypatch.setenv("EBR_NORMALS_DATA", str(tmp_path / "missing"))
-    with pytest.raises(InputError, match="not a data set"):
-        bench.run(tmp_path / "out", quick=True)
-    monkeypatch.delenv("EBR_NORMALS_DATA")
-    monkeypatch.delenv("EBR_VAL_DATA", raising=False)
-    assert "EBR_NORMALS_DATA" in bench.unavailable()
-    with pytest.raises(InputError, match="EBR_NORMALS_DATA"):
-        bench.run(tmp_path / "out", quick=True)
+    assert_needs_data_sets(bench, "EBR_NORMALS_DATA", tmp_path, monkeypatch)

@@ -93,6 +93,12 @@ def load_sentence(cores: float | None) -> str:
     )
 
 
+def data_set_paths(*variables: str) -> list[Path]:
+    """The data sets named in the first of ``variables`` that is set (paths separated by ``:``)."""
+    text = next((os.environ[v] for v in variables if os.environ.get(v)), "")
+    return [Path(p) for p in text.split(":") if p.strip()]
+
+
 def named_runs(var: str, hint: str, required: bool = True) -> list[tuple[str, Path]]:
     """The training runs named in ``$var`` (``NAME=RUN_DIR`` separated by ``;``), in order, each
     with ``RUN_DIR/model.pt``; an :class:`~ebr_mitsuba.errors.InputError` ending in ``hint`` for a

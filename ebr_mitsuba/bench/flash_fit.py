@@ -36,14 +36,13 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import sys
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
-from ._common import machine
+from ._common import data_set_paths, machine
 
 PAGE = "flash_fit.md"
 METAL_F0 = 0.1  # a capture whose true specular map averages above this is a metal (left out)
@@ -66,8 +65,7 @@ def _log(msg: str) -> None:
 
 
 def data_sets() -> list[Path]:
-    text = os.environ.get("EBR_FLASHFIT_DATA") or os.environ.get("EBR_VAL_DATA") or ""
-    return [Path(p) for p in text.split(":") if p.strip()]
+    return data_set_paths("EBR_FLASHFIT_DATA", "EBR_VAL_DATA")
 
 
 def unavailable() -> str | None:

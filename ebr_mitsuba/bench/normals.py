@@ -24,14 +24,13 @@ are the ``ebr estimate`` row of ``docs/models.md``.
 from __future__ import annotations
 
 import json
-import os
 import sys
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
-from ._common import machine
+from ._common import data_set_paths, machine
 
 PAGE = "normals.md"
 VARIANTS = ("flat", "albedo-following", "with relief")
@@ -50,8 +49,7 @@ def _log(msg: str) -> None:
 
 
 def data_sets() -> list[Path]:
-    text = os.environ.get("EBR_NORMALS_DATA") or os.environ.get("EBR_VAL_DATA") or ""
-    return [Path(p) for p in text.split(":") if p.strip()]
+    return data_set_paths("EBR_NORMALS_DATA", "EBR_VAL_DATA")
 
 
 def unavailable() -> str | None:
@@ -102,7 +100,7 @@ def measure(roots: list[Path], limit: int = 0, progress=None) -> dict:
         for i in range(n):
             item = ds[i]
             truth = _truth(item)
-            result = estimate_sample(predictor, root, i)
+            result = estimate_sample(predictor, root, i, nominal=intensity)
             truth_renders = metrics.rerenders(truth, pairs, intensity)
             row = {
                 "data": root.name,

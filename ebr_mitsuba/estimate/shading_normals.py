@@ -348,7 +348,8 @@ def fit_shading_normals(
         normal = np.stack([normal[..., 0] * s, normal[..., 1] * s, z], -1)
     relief = None
     if opts.relief:  # module docstring, "Relief off the albedo"
-        rest = np.where(valid, ratio - design @ coef, 0.0)
+        rest = np.zeros_like(ratio)
+        rest[valid] = residual
         relief = read_relief(
             rest, valid, -p[..., 0] / camera_height, -p[..., 1] / camera_height, opts.relief_smooth
         )

@@ -92,11 +92,25 @@ def _lights_predictor(predictor: LightsPredictor) -> Callable[[dict, list[str]],
     return run
 
 
+def nominal_flash_intensity(root: str | Path) -> float:
+    """The flash intensity of the data set ``root`` (its ``dataset.json``), before each sample's
+    exposure."""
+    meta = json.loads((Path(root) / "dataset.json").read_text())
+    return float(meta["config"]["capture"]["flash_intensity"])
+
+
 def estimate_sample(
-    predictor, root: str | Path, index: int, refine=None, flash_fit: bool = True, far: bool = True
+    predictor,
+    root: str | Path,
+    index: int,
+    refine=None,
+    flash_fit: bool = True,
+    far: bool = True,
+    nominal: float | None = None,
 ):
     """What ``ebr estimate`` makes of sample ``index`` of the data set ``root`` from its photo files
-    (:func:`estimate_predictor`, whose arguments these are): the
+    (:func:`estimate_predictor`, whose arguments these are; ``nominal``: the data set's
+    :func:`nominal_flash_intensity`, read when not given): the
     :class:`~ebr_mitsuba.estimate.pipeline.EstimateResult`, its files written into a temporary
     directory and dropped."""
     import tempfile
@@ -106,8 +120,8 @@ def estimate_sample(
     from ..estimate.refine import RefineConfig
 
     root = Path(root)
-    meta = json.loads((root / "dataset.json").read_text())
-    nominal = float(meta["config"]["capture"]["flash_intensity"])
+    if nominal is None:
+        nominal = nominal_flash_intensity(root)
     sample = root / sample_dirname(int(index))
     record = json.loads((sample / "sample.json").read_text())
     shots = {s["name"]: sample / s["photo"] for s in record["shots"]}
@@ -148,12 +162,13 @@ def estimate_predictor(
     from ..estimate.refine import RefineConfig
 
     root = Path(data)
+    nominal = nominal_flash_intensity(root)
     refine = refine or RefineConfig()
 
     def run(item: dict, names: list[str]) -> dict:
         if "noflash" not in names:
             raise InputError(f"{root}: shots {names}; the estimate predictor needs flash / no-flash pairs")
-        result = estimate_sample(predictor, root, int(item["index"]), refine, flash_fit, far)
+        result = estimate_sample(predictor, root, int(item["index"]), refine, flash_fit, far, nominal)
         if refine.steps > 0:
             return {"estimate": result.network_maps, "estimate + refinement": result.maps}
         return {"estimate": result.maps}
