@@ -83,7 +83,7 @@ def test_relief_off_and_gain():
     on = fit_shading_normals(flash, noflash, camera_height=NEAR_DISTANCE)
     np.testing.assert_allclose(on.normal, off.normal, atol=1e-6)  # the diffuse correction's normals
     assert not np.allclose(on.shrunk(0.6, 0.5), on.shrunk(0.6), atol=1e-3)
-    for bad in (-0.1, 1.5):
+    for bad in (-0.1, 2.5):
         with pytest.raises(InputError, match="relief_gain"):
             ShadingNormalsConfig(relief_gain=bad)
     with pytest.raises(InputError, match="relief_smooth"):

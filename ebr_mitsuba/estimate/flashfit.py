@@ -307,6 +307,17 @@ deepest relief sets read right (a thatch, slope variance 0.19, 0.88 for 0.89; a 
 low. The RMSE of the per-capture roughness against the truth's mean was 0.0577 uncorrected and
 0.0579 / 0.0587 / 0.0658 / 0.134 for k = 0.05 / 0.1 / 0.25 / 0.5.
 
+Tried and dropped (2026-12-07): the lobe read at each pixel's own normal instead of the flat one
+(the table looked up at the angle between the pixel's view direction and a given normal map, the
+rings and the level as before), so that the relief's tilted pixels no longer read as a broader
+lobe. On 34 dielectric validation captures with shading normals (``configs/data_real_val.toml``,
+24, and the first 21 of ``configs/data_real_val2.toml``) the RMS error of ``ebr estimate``'s
+roughness against the truth's mean was 0.0575 at the flat normal, 0.0579 at the *true* normal maps
+(bias −0.009 → −0.035: it helps the relief-heavy sets, a roofing tile 0.805 → 0.655 for 0.70,
+snow 0.725 → 0.60 for 0.61, and makes others read smooth, a brick set 0.54 → 0.50 for 0.545),
+0.0570 at the estimate's normal map and 0.0653 at its unshrunk slopes (better by over 0.01 in 5,
+worse in 10). Even perfect normals do not remove the over-read on average.
+
 Where the error comes from (``ebr bench flash-fit``, ``docs/bench/flash_fit.md``): on noise-free
 renders of the validation captures' own true maps the fitted roughness is off by an RMS of 0.102
 against 0.122 from the photos (89 dielectric captures of ``configs/data_real_val.toml``,
