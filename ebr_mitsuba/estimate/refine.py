@@ -22,7 +22,13 @@ about 7° on the demo capture whatever the prior weight. On the demo capture (``
 steps, after the flash-profile fit) the defaults lower the re-render RMSE from 0.033 to 0.010 but
 raise the mean per-map RMSE from 0.012 to 0.019 (diffuse better, the other maps worse:
 docs/demo_result.md); on the test split they raise it too (docs/models.md), which is why
-refinement is off by default.
+refinement is off by default. Restricting it to one map after the flash fit does not change
+that (2026-12-07; ``configs/data_real_val.toml``, 24 captures, 100 steps, judged as ``ebr bench
+models`` judges it): the roughness alone against the flash-only image left the mean per-map RMSE
+lower in 5, the held-out-light re-render in 9, both in 3 (mean per-map 0.04247 → 0.04485); the
+roughness alone against the photos 3 / 7 / 2 (→ 0.04639); the normals alone against the
+flash-only image 4 / 3 / 2 (→ 0.04494). The likely cause, not isolated: per pixel the free map
+fits the photos' noise and the fast renderer's differences from the path tracer.
 
 Best iterate. E is read (a host sync) at step 0, every ``log_every`` steps and after the last
 update; the parameters of the lowest E read are returned (``RefineResult.kept_step``; at step 0
