@@ -1009,6 +1009,19 @@ def test_shading_normals_follow_the_relief_and_can_be_switched_off(tmp_path, cap
     )
     # by a margin that depends on the shipped network: 0.064 against 0.071 with the 256² model
     assert map_rmse(shaded, truth)["normal"] < 0.95 * map_rmse(network, truth)["normal"]
+    # larger gains (--normal-gain, --relief-gain) give the normal map more relief, recorded as used
+    code, stdout, err = _estimate(
+        [*shots, "--out", tmp_path / "more", "--normal-gain", "1", "--relief-gain", "1.5", "--json"], capsys
+    )
+    assert code == 0, err
+    more = json.loads(stdout)["shading_normals"]
+    assert more["map_gain"] == 1.0 and more["relief_gain"] == 1.5 and record["relief_gain"] == 0.75
+    more_maps = load_material_dir(tmp_path / "more" / "maps")
+
+    def spread(maps):
+        return float(np.mean(maps.normal[..., :2].reshape(-1, 2).std(axis=0)))
+
+    assert spread(more_maps) > 1.2 * spread(shaded)
 
 
 def test_phone_far_pair_needs_the_far_flash_ratio(tmp_path, capsys, fake_net):

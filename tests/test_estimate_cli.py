@@ -1,8 +1,8 @@
-"""``ebr estimate``'s flags are generated from EstimateConfig, RefineConfig, FiveLightConfig and
-MultiViewConfig: the defaults ``--help`` shows and the parser holds are the fields' defaults (a flag
-two configs share shows the first one's help), and the configs built from the flags are the
-configs' own (no default restated in the command). Nothing is estimated here: these tests only
-parse."""
+"""``ebr estimate``'s flags are generated from EstimateConfig, ShadingNormalsConfig, RefineConfig,
+FiveLightConfig and MultiViewConfig: the defaults ``--help`` shows and the parser holds are the
+fields' defaults (a flag two configs share shows the first one's help), and the configs built from
+the flags are the configs' own (no default restated in the command). Nothing is estimated here:
+these tests only parse."""
 
 from __future__ import annotations
 
@@ -20,9 +20,11 @@ from ebr_mitsuba.estimate.fivelight import FIVELIGHT_FLAGS, FiveLightConfig
 from ebr_mitsuba.estimate.multiview import MULTIVIEW_FLAGS, MultiViewConfig
 from ebr_mitsuba.estimate.pipeline import ESTIMATE_FLAGS, EstimateConfig
 from ebr_mitsuba.estimate.refine import REFINE_FLAGS, RefineConfig
+from ebr_mitsuba.estimate.shading_normals import SHADING_FLAGS, ShadingNormalsConfig
 
 CONFIGS = (
     (EstimateConfig, ESTIMATE_FLAGS),
+    (ShadingNormalsConfig, SHADING_FLAGS),
     (RefineConfig, REFINE_FLAGS),
     (FiveLightConfig, FIVELIGHT_FLAGS),
     (MultiViewConfig, MULTIVIEW_FLAGS),
@@ -49,8 +51,9 @@ def test_every_option_is_a_config_field_and_every_field_a_flag():
     }  # --no-flash-fit, --no-shading-normals, --no-drop-horizon-lobes, --no-view-fit
     assert options - NOT_CONFIG - bool_negations == flags
     assert {"--no-flash-fit", "--no-shading-normals", "--drop-horizon-lobes", "--no-view-fit"} <= options
-    # every field of EstimateConfig (but the nested RefineConfig) and FiveLightConfig is a flag
-    assert set(ESTIMATE_FLAGS) == {f.name for f in dataclasses.fields(EstimateConfig)} - {"refine"}
+    # every field of EstimateConfig (but the nested RefineConfig and ShadingNormalsConfig) and
+    # FiveLightConfig is a flag
+    assert set(ESTIMATE_FLAGS) == {f.name for f in dataclasses.fields(EstimateConfig)} - {"refine", "shading"}
     assert set(FIVELIGHT_FLAGS) == {f.name for f in dataclasses.fields(FiveLightConfig)}
     assert set(MULTIVIEW_FLAGS) == {f.name for f in dataclasses.fields(MultiViewConfig)}
 
@@ -117,6 +120,7 @@ def test_flags_set_the_fields():
         "2",
     ]
     argv += ["--refine-seconds", "9", "--refine-lobes", "--checkpoint", "m.pt", "--saturation-level", "0.9"]
+    argv += ["--normal-gain", "0.9", "--relief-gain", "1.25"]
     cfg = cmd.estimate_config(parser.parse_args(argv))
     assert cfg == EstimateConfig(
         flash="f.exr",
@@ -124,6 +128,7 @@ def test_flags_set_the_fields():
         out="o",
         checkpoint="m.pt",
         refine=RefineConfig(steps=7, lr=0.05, mode="quadrature", basis=2, seconds=9.0, lobes=True),
+        shading=ShadingNormalsConfig(map_gain=0.9, relief_gain=1.25),
         exposure_ratio=2.0,
         fov=50.0,
         max_shift=0.1,
@@ -154,6 +159,8 @@ def test_flags_set_the_fields():
         (["--exposure-ratio", "0"], "--exposure-ratio: must be > 0"),
         (["--render-mode", "path"], "--render-mode: got 'path'; use one of sg, quadrature"),
         (["--refine-basis", "99"], "--refine-basis: must be in [0, 8]"),
+        (["--relief-gain", "3"], "--relief-gain: must be in [0, 2]"),
+        (["--normal-gain", "-0.1"], "--normal-gain: must be in [0, 1]"),
     ],
 )
 def test_bad_values_exit_2_naming_the_flag(tmp_path, capsys, extra, needle):
@@ -165,7 +172,9 @@ def test_bad_values_exit_2_naming_the_flag(tmp_path, capsys, extra, needle):
     assert not out.exists()
 
 
-@pytest.mark.parametrize("extra", [["--refine-basis", "2"], ["--max-shift", "0.1"], ["--refine-lobes"]])
+@pytest.mark.parametrize(
+    "extra", [["--refine-basis", "2"], ["--max-shift", "0.1"], ["--refine-lobes"], ["--relief-gain", "1"]]
+)
 def test_flash_noflash_options_are_refused_with_lights(tmp_path, capsys, extra):
     out = tmp_path / "out"
     code = main(["estimate", "--lights", str(tmp_path), "--out", str(out), *extra])
@@ -193,6 +202,7 @@ def test_required_out_is_an_argparse_error():
         (["--refine-basis", "2"], "--refine-basis does not apply to --views"),
         (["--max-shift", "0.1"], "--max-shift does not apply to --views"),
         (["--no-flash-fit"], "--no-flash-fit does not apply to --views"),
+        (["--normal-gain", "0.8"], "--normal-gain does not apply to --views"),
         (["--lights", "a"], "--views and --lights are two captures"),
         (["--flash", "f.exr"], "--views and --flash are two captures"),
     ],

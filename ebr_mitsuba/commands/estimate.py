@@ -38,10 +38,13 @@ view or capture.json, another count than 9, views of different sizes, a checkpoi
 kind, --views with --flash or --lights. Of the options below only the common ones apply.
 
 The options, their defaults (in brackets) and ranges are generated from the fields of
-EstimateConfig (ebr_mitsuba.estimate.pipeline), RefineConfig (ebr_mitsuba.estimate.refine: the
---refine-* flags and --render-mode), FiveLightConfig (ebr_mitsuba.estimate.fivelight: --lights)
-and MultiViewConfig (ebr_mitsuba.estimate.multiview: --views), listed below by the mode they apply
-to; docs/config.md has their tables.
+EstimateConfig (ebr_mitsuba.estimate.pipeline), ShadingNormalsConfig
+(ebr_mitsuba.estimate.shading_normals: --normal-gain, --relief-gain, how much of the relief read
+off the photos the normal map keeps; docs/bench/normals.md measures their error against the
+normals' spread), RefineConfig (ebr_mitsuba.estimate.refine: the --refine-* flags and
+--render-mode), FiveLightConfig (ebr_mitsuba.estimate.fivelight: --lights) and MultiViewConfig
+(ebr_mitsuba.estimate.multiview: --views), listed below by the mode they apply to;
+docs/config.md has their tables.
 
 Sizes: the lighting is estimated once at the model's grid (256x256 for the shipped model); the maps
 at the photos' resolution up to --max-size. Photos smaller than 32 pixels on the shorter side are
@@ -63,6 +66,7 @@ from ..estimate.fivelight import FIVELIGHT_FLAGS, FiveLightConfig
 from ..estimate.multiview import MULTIVIEW_FLAGS, MultiViewConfig
 from ..estimate.pipeline import ESTIMATE_FLAGS, EstimateConfig
 from ..estimate.refine import REFINE_FLAGS, RefineConfig
+from ..estimate.shading_normals import SHADING_FLAGS, ShadingNormalsConfig
 from ..typedconfig import add_flags, flag_dest, flag_name, flag_value, from_args
 from ._common import emit_json, progress, say
 
@@ -79,6 +83,7 @@ LIGHTS_ONLY_FLAGS = tuple(n for n in FIVELIGHT_FLAGS if flag_name(FiveLightConfi
 NOT_FOR_LIGHTS = (  # (config, field): refused with --lights
     *((EstimateConfig, n) for n in PAIR_FLAGS),
     *((RefineConfig, n) for n in REFINE_FLAGS),
+    *((ShadingNormalsConfig, n) for n in SHADING_FLAGS),
 )
 _SHARED_FLAG_NAMES = _PAIR_FLAG_NAMES | _LIGHT_FLAG_NAMES
 VIEWS_ONLY_FLAGS = tuple(
@@ -88,6 +93,7 @@ _VIEW_FLAG_NAMES = {flag_name(MultiViewConfig, n) for n in MULTIVIEW_FLAGS}
 NOT_FOR_VIEWS = (  # (config, field): refused with --views
     *((EstimateConfig, n) for n in ESTIMATE_FLAGS if flag_name(EstimateConfig, n) not in _VIEW_FLAG_NAMES),
     *((RefineConfig, n) for n in REFINE_FLAGS),
+    *((ShadingNormalsConfig, n) for n in SHADING_FLAGS),
     *(
         (FiveLightConfig, n)
         for n in FIVELIGHT_FLAGS
@@ -102,6 +108,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     pair = parser.add_argument_group("flash/no-flash capture (EstimateConfig)")
     add_flags(pair, EstimateConfig, PAIR_FLAGS)
+    shading = parser.add_argument_group(
+        "shading normals (ShadingNormalsConfig; flash/no-flash only; gains against error: "
+        "docs/bench/normals.md)"
+    )
+    add_flags(shading, ShadingNormalsConfig, SHADING_FLAGS)
     add_refine_arguments(
         parser.add_argument_group("test-time refinement (RefineConfig; flash/no-flash only)")
     )
@@ -125,7 +136,8 @@ def refine_config(args) -> RefineConfig:
 def estimate_config(args) -> EstimateConfig:
     """The :class:`~ebr_mitsuba.estimate.pipeline.EstimateConfig` of the parsed flags (every value
     checked; an :class:`InputError` naming the flag)."""
-    return from_args(EstimateConfig, args, ESTIMATE_FLAGS, refine=refine_config(args))
+    shading = from_args(ShadingNormalsConfig, args, SHADING_FLAGS)
+    return from_args(EstimateConfig, args, ESTIMATE_FLAGS, refine=refine_config(args), shading=shading)
 
 
 def fivelight_config(args) -> FiveLightConfig:

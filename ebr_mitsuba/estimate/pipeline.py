@@ -90,6 +90,7 @@ from .options import (
 from .outputs import check_out_dir
 from .refine import RefineConfig, ShotTarget, fit_flash_intensity, refine, rerender_errors
 from .resample import working_size
+from .shading_normals import ShadingNormalsConfig
 
 ESTIMATE_FORMAT = "ebr-estimate/1"
 
@@ -98,7 +99,8 @@ ESTIMATE_FORMAT = "ebr-estimate/1"
 class EstimateConfig:
     """Everything an estimate needs: the options of ``ebr estimate`` (its flags, defaults and help
     are generated from these fields; a bad value is an :class:`~ebr_mitsuba.errors.InputError`
-    naming the flag). ``refine`` holds the :class:`~.refine.RefineConfig` of the refinement."""
+    naming the flag). ``refine`` holds the :class:`~.refine.RefineConfig` of the refinement,
+    ``shading`` the :class:`~.shading_normals.ShadingNormalsConfig` of the shading normals."""
 
     flash: str = option(
         meaning="photo with the flash (EXR, PNG, JPEG); or --lights", flag="--flash", metavar="F"
@@ -121,6 +123,10 @@ class EstimateConfig:
         "model checkpoint (none: with far shots, the shipped near-far model)", "the shipped model"
     )
     refine: RefineConfig = option(RefineConfig(), "test-time refinement (RefineConfig; its --refine-* flags)")
+    shading: ShadingNormalsConfig = option(
+        ShadingNormalsConfig(),
+        "the shading normals' options (ShadingNormalsConfig; --normal-gain, --relief-gain)",
+    )
     exposure_ratio: float | None = option(
         None,
         "no-flash exposure / flash exposure when the files carry no EXIF",
@@ -170,7 +176,7 @@ class EstimateConfig:
 
 
 ESTIMATE_FLAGS = tuple(  # the fields ebr estimate sets from flags (refine: its own REFINE_FLAGS)
-    f.name for f in dataclasses.fields(EstimateConfig) if f.name != "refine"
+    f.name for f in dataclasses.fields(EstimateConfig) if f.name not in ("refine", "shading")
 )
 
 
@@ -633,12 +639,16 @@ def run_estimate(
                 noflash_img,
                 camera_height=near_distance(inputs.fov),
                 saturated=work_inputs.saturated,
+                options=cfg.shading,
                 log=log,
             )
             if shading_fit is not None:  # the photo pattern's shading is the relief's, not the albedo's
                 camera = (0.0, 0.0, near_distance(inputs.fov))
                 flash_fit = flash_fit.with_normals(shading_fit.normal, camera=camera)
-                normal, source = shading_fit.map_normal(), "ebr estimate (shading normals, flash fit)"
+                normal, source = (
+                    shading_fit.map_normal(cfg.shading),
+                    "ebr estimate (shading normals, flash fit)",
+                )
             stage("shading normals", t0)
         if flash_fit.misfits(fit_options.misfit_limit):
             log(

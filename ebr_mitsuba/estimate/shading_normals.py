@@ -181,9 +181,12 @@ class ShadingNormalsConfig:
     map_gain: float = option(
         0.6,
         'the normal map\'s slopes over the fitted ones (module docstring, "Shrinkage"); the diffuse '
-        "map's shading correction uses the fitted slopes",
+        "map's shading correction uses the fitted slopes; more: more relief at some error "
+        "(docs/bench/normals.md)",
         minimum=0,
         maximum=1,
+        flag="--normal-gain",
+        metavar="G",
     )
     fit_size: int = option(
         256,
@@ -199,9 +202,11 @@ class ShadingNormalsConfig:
     relief_gain: float = option(
         0.75,
         "the normal map's share of the relief read off the residual (module docstring; its error "
-        "against structure: ebr bench normals)",
+        "against structure: docs/bench/normals.md)",
         minimum=0,
         maximum=2,
+        flag="--relief-gain",
+        metavar="G",
     )
     relief_smooth: float = option(
         1.0,
@@ -219,6 +224,9 @@ class ShadingNormalsConfig:
         from ..typedconfig import check
 
         check(self)
+
+
+SHADING_FLAGS = ("map_gain", "relief_gain")  # the fields ebr estimate sets from flags
 
 
 @dataclass
