@@ -42,6 +42,12 @@ insertions got better (a procedural leather 6.4 → 5.2×, two barks 9.1 → 7.8
 worse (a procedural tile set 1.7 → 2.6×), the others unchanged: ``e`` is about half the true
 length, and one gradient does not place a light.
 
+Also tried (2026-12-07): half the noise variance (as if the neighbour-based estimate counted fine
+relief as noise: per capture the relief's least-squares gain against the truth is largest where
+the reading is smallest). The slopes grow and the normals get worse on all three validation sets
+of ``ebr bench normals`` at every relief gain from 0.15 to 1: at best 0.04546 / 0.04169 / 0.04263
+against 0.04227 / 0.03813 / 0.04220 with the estimate as it is.
+
 What it cannot see: relief under a sky whose gradient is parallel to the flash's everywhere (then
 one component is all any pixel sees), relief finer than the pixel noise allows, and the slopes'
 low frequencies (``r`` is high-passed with the ratio).
