@@ -1017,6 +1017,8 @@ def test_shading_normals_follow_the_relief_and_can_be_switched_off(tmp_path, cap
     more = json.loads(stdout)["shading_normals"]
     assert more["map_gain"] == 1.0 and more["relief_gain"] == 1.5 and record["relief_gain"] == 0.75
     more_maps = load_material_dir(tmp_path / "more" / "maps")
+    more_html = (tmp_path / "more" / "report.html").read_text()
+    assert "× 1 in the map, --normal-gain" in more_html and "× 1.5 in the map, --relief-gain" in more_html
 
     def spread(maps):
         return float(np.mean(maps.normal[..., :2].reshape(-1, 2).std(axis=0)))

@@ -333,7 +333,8 @@ def _page(result: dict, roots: list[Path], seconds: float, quick: bool, shown: l
         "keep the network's normals in all three. Metrics as in [models.md](../models.md); spread: the "
         "normals' spatial spread over the truth's, capped at 1 per capture.",
         "",
-        f"Data: {', '.join(f'`{r}`' for r in roots)}: validation captures (training materials and maps), "
+        f"Data: {', '.join(f'`{r}`' for r in roots)}: validation captures (the training split's material "
+        "sets and maps, or new draws of the procedural families: `configs/data_proc_val.toml`), "
         "never the test split; the test split's figures are the `ebr estimate` row of "
         "[models.md](../models.md).",
         "",

@@ -200,13 +200,15 @@ def _flash_fit_section(fit: dict | None, shading: dict | None) -> str:
         normals = "the network's (a glossy sample: glints would mislead the shading fit)"
         if shading.get("applied"):
             normals = "shading normals: the albedo texture scaled by the flash / no-flash shading"
+            if shading.get("map_gain") is not None:
+                normals += f" (× {_fmt(shading['map_gain'], 2)} in the map, --normal-gain)"
             relief = shading.get("relief")
             if relief and shading.get("relief_gain"):
                 sky = ", ".join(_fmt(x, 2) for x in relief["sky_gradient"])
                 normals += (
                     f", plus the relief the albedo does not show, read off the rest of that ratio "
                     f"(slopes rms {_fmt(relief['slope_rms'], 3)}, × {_fmt(shading['relief_gain'], 2)} "
-                    f"in the map; sky gradient {sky})"
+                    f"in the map, --relief-gain; sky gradient {sky})"
                 )
         rows.append(["normals", normals])
     return (
