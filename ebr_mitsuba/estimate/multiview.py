@@ -64,9 +64,9 @@ as absolute instead made the flash term over-shoot most views, b ≈ 0 and the i
 are taken as they are. The lighting written is the network's times ``b``: in photo units.
 
 **The multi-view specular fit** (:func:`fit_specular`, default on; ``--no-view-fit`` keeps the
-network's specular and roughness maps). The small MAIR model's specular and roughness are barely
-better than a guess (docs/mair_eval.md: F0 0.09 RMSE against a test split of dielectrics at
-0.04). The views say more: each view's flash puts its highlight at another place of the sample, so
+network's specular and roughness maps). The small MAIR model's specular is coarse
+(docs/mair_eval.md: F0 0.032 RMSE on a test split of dielectrics at 0.04; the first shipped
+model, trained a fifth as long, 0.09). The views say more: each view's flash puts its highlight at another place of the sample, so
 per pixel the nine views sample the lobe at nine angles while the albedo and the environment's
 diffuse light are the same in all. For each hypothesis of F0 (grey: 0.04, the dielectrics of the
 measured table, or 0.25 / 0.5 / 0.9, a metal) and roughness (20 values, 0.05–1; every other one
@@ -79,7 +79,10 @@ per channel: with the specular known, the lighting's colour is the views' beyond
 fabric's diffuse came out 0.68 / 0.29 / 0.06). Needs the flash intensities (``capture.json`` or
 ``--flash-intensity``). On 8 training-set samples of ``configs/data_real_multiview_train.toml``
 (not the test split) it took the mean per-map RMSE from 0.130 to 0.082 (diffuse 0.187 → 0.075,
-specular 0.087 → 0.007), about 6 s per estimate at 256² on two cores. What it cannot do: a
+specular 0.087 → 0.007) with the first shipped model; on the multi-view test split with the
+current one (docs/mair_eval.md) from 0.0624 to 0.0585 (specular 0.032 → 0.008, diffuse 0.082 →
+0.071, but roughness 0.101 → 0.120: the network's roughness map beats the one fitted value), about
+6 s per estimate at 256² on two cores. What it cannot do: a
 roughness map (one value for the sample); a mirror-like surface (on one of those samples, a facade
 of roughness 0.06, the fit read 1.0).
 
