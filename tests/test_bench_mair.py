@@ -92,6 +92,12 @@ def test_quick_page_scores_every_run_lighting_and_insertion(
     assert "attention against mean pooling: not measured" in page
     (row,) = record["insertion"]  # quick: one sample
     assert row["noise_floor"] > 0 and np.isfinite(row["rel_rmse"]) and row["env"].endswith("SG lobes")
+    # the error taken apart: every swap measured; this sample's environment is its lobes, so the
+    # true maps under them, at the truth render's seed, are the truth render itself
+    assert set(row["swaps"]) == {"maps", "lighting", "lobes"}
+    assert all(np.isfinite(v) and v >= 0 for v in row["swaps"].values())
+    assert row["swaps"]["lobes"] < 1e-3 < row["swaps"]["lighting"]
+    assert "| estimate | estimated maps, true environment |" in page
     for picture in ("mair_eval.jpg", "mair_eval_maps.jpg"):
         assert (tmp_path / picture).stat().st_size > 0, picture
     assert "![views, maps, lighting and an insertion of one test sample](mair_eval.jpg)" in page
@@ -149,6 +155,12 @@ def test_acceptance_verdicts():
     assert lines.count("— yes") == 2
     lines = "\n".join(bench.acceptance_lines(rec(0.080, 0.082, 0.090)))
     assert lines.count("— no") == 2  # 2 % below mean pooling, 11 % below the centre view
+    r = rec(0.080, 0.090, 0.100)
+    r["insertion"] = [{"rel_rmse": 0.15, "noise_floor": 0.1}, {"rel_rmse": 0.3, "noise_floor": 0.1}]
+    lines = "\n".join(bench.acceptance_lines(r))
+    assert "within 2× of the truth-vs-truth noise floor in 1 of 2 samples (ratios 1.5, 3.0) — no" in lines
+    r["insertion"] = r["insertion"][:1]
+    assert "in 1 of 1 samples (ratios 1.5) — yes" in "\n".join(bench.acceptance_lines(r))
 
 
 def test_refusals(monkeypatch, tmp_path, tiny_mv):

@@ -52,13 +52,15 @@ def _log(msg: str) -> None:
     print(f"[bench insert] {msg}", file=sys.stderr, flush=True)
 
 
-def measure(plate, truth, material: str, res: int, spp: int, dropped=None) -> dict:
+def measure(plate, truth, material: str, res: int, spp: int, dropped=None, others=None) -> dict:
     """One insertion of ``material``'s default object into ``plate`` and into ``truth`` (both
     :class:`~ebr_mitsuba.insert.Plate`): RMSE of the insertion (composited where the plate has a
     photo) and of the whole-frame render against the truth's, the truth-vs-truth noise floor
     (another seed), the insertion's and the floor's relative RMSE, and the insertion's picture
     (estimate | truth | difference, at the truth's exposure); with ``dropped`` (the plate of the
-    same estimate with its horizon lobes dropped), its insertion's ratio to the same floor."""
+    same estimate with its horizon lobes dropped), its insertion's ratio to the same floor; with
+    ``others`` (name → plate), each one's insertion's relative RMSE against the same truth render
+    (``row["others"]``), to tell which part of the plate the error comes from."""
     from ..insert import InsertConfig, exposure, insertion_images, object_dict, side_by_side
     from ..metrics import rel_rmse, rmse
 
@@ -80,6 +82,11 @@ def measure(plate, truth, material: str, res: int, spp: int, dropped=None) -> di
     if dropped is not None:  # against the same truth render and floor
         other = insertion_images(dropped, cfg, res, shape)[0]["insert"]
         row["dropped_ratio"] = rmse(other, images["truth"]) / floor
+    if others:
+        row["others"] = {
+            name: rel_rmse(insertion_images(p, cfg, res, shape)[0]["insert"], images["truth"])
+            for name, p in others.items()
+        }
     picture = side_by_side(images["insert"], images["truth"], exposure(images["truth"]))
     return {**row, "picture": np.clip(picture, 0, None)}
 

@@ -55,6 +55,7 @@ PAGE = "mair_eval.md"
 QUICK_LIMIT = 2
 CENTRE_GAIN = 0.15  # issue 13: attention's mean per-map RMSE at least this far below the centre view's
 MEAN_GAIN = 0.05  # ... and this far below mean pooling's
+INSERT_RATIO = 2.0  # ... and the insertion's relative RMSE within this factor of the truth's noise floor
 INSERT_SAMPLES = 4  # insertions on the first test samples (each: three Mitsuba renders)
 INSERT_RES, INSERT_SPP = 128, 256
 QUICK_INSERT = (1, 64, 16)  # samples, resolution, spp of --quick
@@ -172,10 +173,35 @@ def views_predictor(predictor, data: Path, record: Recorded, keep: int, view_fit
     return run
 
 
+SWAPS = (  # the insertion's error taken apart: each plate swaps one part of the estimate for the truth
+    ("maps", "estimated maps, true environment"),
+    ("lighting", "true maps, estimated lighting"),
+    ("lobes", "true maps, the true environment's SG lobes"),
+)
+
+
+def truth_lobes_emitter(sample: Path):
+    """The emitter factory of the SG lobes fitted to the environment ``sample`` was rendered under
+    (its ``env.json``, in photo units), or None when it has none."""
+    from ..scene import sg_emitter_dict
+    from ..sgenv import SGEnvironment
+
+    record = json.loads((sample / "sample.json").read_text())
+    env = record.get("env") or {}
+    path = sample / env.get("file", "env.json")
+    if not env.get("lobes") or not path.is_file():
+        return None
+    lobes, exposure = SGEnvironment.load(path), float(record["camera"]["exposure"])
+    return lambda: sg_emitter_dict(lobes, exposure)
+
+
 def insertions(estimates: list, truths: list, samples: list[Path], res: int, spp: int, log=print) -> dict:
     """The default insertion (module docstring) into each estimate and its truth: per sample the
     relative RMSE of the estimate's against the truth's, the truth's noise floor (seed 1 against
-    seed 0) and the pictures; skipped for dark samples."""
+    seed 0), the same error of the plates of :data:`SWAPS` (the estimated maps under the true
+    environment, the true maps under the estimated lighting, the true maps under the SG lobes
+    fitted to the true environment: what MAIR's lighting representation allows at best) and the
+    pictures; skipped for dark samples."""
     from ..insert import Plate
     from ..scene import sg_emitter_dict
     from .insert import measure
@@ -188,15 +214,24 @@ def insertions(estimates: list, truths: list, samples: list[Path], res: int, spp
         emitter, described = made
         fov = est.shots[len(est.shots) // 2].fov
         env = est.lighting.pixel_environment()
-        plate = Plate(sample, "estimate", est.maps, fov, lambda env=env: sg_emitter_dict(env))
-        log(f"[bench mair] insertion into {sample.name} ({res}², {spp} spp, three renders)")
-        r = measure(plate, Plate(sample, "capture", truth, fov, emitter), "diffuse", res, spp)
+        lighting = lambda env=env: sg_emitter_dict(env)  # noqa: E731
+        plate = Plate(sample, "estimate", est.maps, fov, lighting)
+        swaps = {
+            "maps": Plate(sample, "estimate", est.maps, fov, emitter),
+            "lighting": Plate(sample, "estimate", truth, fov, lighting),
+        }
+        lobes = truth_lobes_emitter(sample)
+        if lobes is not None:
+            swaps["lobes"] = Plate(sample, "estimate", truth, fov, lobes)
+        log(f"[bench mair] insertion into {sample.name} ({res}², {spp} spp, {3 + len(swaps)} renders)")
+        r = measure(plate, Plate(sample, "capture", truth, fov, emitter), "diffuse", res, spp, others=swaps)
         rows.append(
             {
                 "sample": sample.name,
                 "env": described,
                 "rel_rmse": r["composite_rel"],
                 "noise_floor": r["floor_rel"],
+                "swaps": r["others"],
             }
         )
         pictures.append(r["picture"])
@@ -390,7 +425,50 @@ def acceptance_lines(record: dict) -> list[str]:
             f"per-map RMSE {v:.4f} against the network's {att:.4f} ({(att - v) / att:+.0%}); not an "
             "acceptance figure: the fit reads F0 and roughness off all nine views for every network alike"
         )
+    ins = record.get("insertion") or []
+    if ins:
+        ratios = [_ratio(r["rel_rmse"], r) for r in ins]
+        ok = sum(q <= INSERT_RATIO for q in ratios)
+        lines.append(
+            f"- **insertion** (first run + view fit): relative RMSE within {INSERT_RATIO:g}× of the "
+            f"truth-vs-truth noise floor in {ok} of {len(ins)} samples (ratios "
+            f"{', '.join(f'{q:.1f}' for q in ratios)}) — {'yes' if ok == len(ins) else 'no'}; "
+            "where the error comes from: [Object insertion](#object-insertion)"
+        )
     return lines + [""]
+
+
+def _ratio(value: float, row: dict) -> float:
+    """``value`` (a relative RMSE against the truth render) over the row's noise floor."""
+    return value / row["noise_floor"] if row["noise_floor"] > 0 else float("inf")
+
+
+def _swap_lines(ins: list[dict]) -> list[str]:
+    """The table of :data:`SWAPS`: each plate's insertion error over the noise floor, per sample."""
+    names = [(key, label) for key, label in SWAPS if any(key in r.get("swaps", {}) for r in ins)]
+    if not names:
+        return []
+
+    def cell(r, key):
+        v = r.get("swaps", {}).get(key)
+        return "" if v is None else f"{_ratio(v, r):.1f}"
+
+    return [
+        "Where the error comes from: the same insertion with one part of the estimate swapped for the "
+        "truth, each as its ratio to the noise floor (same truth render, same floor). The last column "
+        "is the best MAIR's lighting representation allows: the true maps under the SG lobes fitted "
+        "to the true environment (32 lobes; the estimate has 3 per pixel).",
+        "",
+        "| sample | estimate | " + " | ".join(label for _, label in names) + " |",
+        "|---|---:|" + "---:|" * len(names),
+        *(
+            f"| {r['sample']} | {_ratio(r['rel_rmse'], r):.1f} | "
+            + " | ".join(cell(r, key) for key, _ in names)
+            + " |"
+            for r in ins
+        ),
+        "",
+    ]
 
 
 def _page(record, summaries, runs, ds, seconds, inserted, figure: bool) -> str:
@@ -485,6 +563,7 @@ def _page(record, summaries, runs, ds, seconds, inserted, figure: bool) -> str:
                 for r, q in zip(ins, ratio)
             ),
             "",
+            *_swap_lines(ins),
         ]
     else:
         lines += ["(No insertion: the first samples have no environment.)", ""]
