@@ -47,10 +47,12 @@ def test_every_option_is_a_config_field_and_every_field_a_flag():
             (EstimateConfig, "shading_normals"),
             (EstimateConfig, "drop_horizon_lobes"),
             (MultiViewConfig, "view_fit"),
+            (MultiViewConfig, "pixel_albedo"),
         )
-    }  # --no-flash-fit, --no-shading-normals, --no-drop-horizon-lobes, --no-view-fit
+    }  # --no-flash-fit, --no-shading-normals, --no-drop-horizon-lobes, --no-view-fit, --no-pixel-albedo
     assert options - NOT_CONFIG - bool_negations == flags
     assert {"--no-flash-fit", "--no-shading-normals", "--drop-horizon-lobes", "--no-view-fit"} <= options
+    assert "--no-pixel-albedo" in options
     # every field of EstimateConfig (but the nested RefineConfig and ShadingNormalsConfig) and
     # FiveLightConfig is a flag
     assert set(ESTIMATE_FLAGS) == {f.name for f in dataclasses.fields(EstimateConfig)} - {"refine", "shading"}

@@ -299,11 +299,58 @@ def test_the_environment_is_scaled_against_the_known_flash(tmp_path):
     assert est.specular_fit is not None and est.specular_fit.f0 == 0.04
     assert np.allclose(est.lighting.intensity, amplitude, rtol=0.05), est.lighting.intensity
     assert np.allclose(est.diffuse_scale, 1 / 1.5, rtol=0.03), est.diffuse_scale
-    assert np.allclose(est.maps.diffuse, maps.diffuse, rtol=0.03)
+    # the map per pixel (the default): the views' noise at 16 spp, about the right level
+    median = np.median(est.maps.diffuse.reshape(-1, 3), axis=0)
+    spread = np.sqrt(np.mean((est.maps.diffuse / maps.diffuse - 1) ** 2))
+    assert np.allclose(median, maps.diffuse[0, 0], rtol=0.03) and spread < 0.06, (median, spread)  # 0.03
     renders, masks = est.renders(), est.masks()  # the views' means (16 spp: noisy pixels)
     for k, name in enumerate(est.names):
         view, render = est.views.images[name][masks[k]].mean(0), renders[name][masks[k]].mean(0)
         assert np.allclose(render, view, rtol=0.015), (name, render, view)
+
+
+def test_the_pixel_albedo_reads_the_texture_off_the_views(tmp_path):
+    """A Mitsuba capture of a checkerboard albedo (0.3 / 0.5, 8-pixel squares: a contrast within
+    PIXEL_ALBEDO_RANGE either way) under its flashes, estimated through a predictor whose diffuse
+    map is the checkerboard's flat mean: with the per-pixel factor (the default) the estimate shows
+    the squares — within 0.01 inside them (measured 0.00; their borders blur in the rectification
+    and the sample's edge column falls back to the median) and RMSE under half the flat map's 0.1
+    (measured 0.034); with --no-pixel-albedo it stays flat."""
+    from ebr_mitsuba.capture import capture
+    from ebr_mitsuba.svbrdf import SVBRDF
+
+    n = 32
+    i, j = np.mgrid[:n, :n]
+    board = np.where(((i // 8) + (j // 8)) % 2 == 0, 0.3, 0.5).astype(np.float32)
+    truth = _uniform(n, [0.4, 0.4, 0.4], 0.5)
+    truth = SVBRDF(truth.normal, np.repeat(board[..., None], 3, -1), truth.specular, truth.roughness)
+    cap = tmp_path / "cap"
+    capture(truth, None, "multi-view", cap, spp=16, res=n, progress=False)
+    flat = _uniform(n, [0.4, 0.4, 0.4], 0.5)
+    inside = ((i % 8 >= 2) & (i % 8 <= 5) & (j % 8 >= 2) & (j % 8 <= 5))[..., None]
+    rmse, interior = {}, {}
+    for on in (True, False):
+        cfg = multiview.MultiViewConfig(
+            views=str(cap), out=str(tmp_path / f"e{on}"), view_fit=False, pixel_albedo=on
+        )
+        est = multiview.estimate_views(cfg, _DarkPredictor(flat))
+        err = est.maps.diffuse - truth.diffuse
+        rmse[on] = float(np.sqrt(np.mean(err**2)))
+        interior[on] = float(np.abs(err * inside).max())
+    assert interior[True] < 0.01 and rmse[True] < 0.05 < 0.08 < rmse[False], (rmse, interior)
+
+
+def test_the_pixel_factor_is_bounded_and_falls_back_to_the_median():
+    alpha = np.ones((2, 2, 3), np.float32)
+    alpha[0, 0] = [10.0, 0.01, 1.5]
+    seen = np.array([[True, True], [True, False]])
+    s = multiview.Scales([1.0] * 9, (1.0, 1.0, 1.0), (1.0, 0.5, 2.0), 0.0, alpha, seen)
+    f = s.pixel_factor()
+    r = multiview.PIXEL_ALBEDO_RANGE
+    assert np.allclose(f[0, 0], [r, 0.5 / r, 1.5])  # clipped to the range about each median
+    assert np.allclose(f[1, 1], [1.0, 0.5, 2.0])  # unseen: the median
+    assert np.allclose(f[0, 1], [1.0, 1.0, 1.0])
+    assert multiview.Scales([1.0] * 9, (1.0, 1.0, 1.0)).pixel_factor() is None
 
 
 @pytest.mark.parametrize("roughness", [0.3, 0.75])

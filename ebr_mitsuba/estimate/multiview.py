@@ -57,34 +57,36 @@ hemisphere above each pixel, their specular reflection by SG convolution), ``a_k
 factor and ``b ≥ 0`` by least squares over the in-frame, unsaturated pixels of all views. With the
 a_k known, the diffuse parts of ``F_k`` and ``E_k`` take a factor free per pixel and channel while
 b is fitted, so that the flash, a light of known intensity, sets the albedo's level and what the
-views show beyond it sets the environment's; the diffuse map is then brought to photo units by the
-median factor per channel (``diffuse_scale``; clipped to [0, 1]). Taking the network's diffuse map
+views show beyond it sets the environment's; the diffuse map is then brought to photo units by
+that factor, per pixel where at least :data:`MIN_VIEWS_PER_PIXEL` views saw it (within
+:data:`PIXEL_ALBEDO_RANGE` of its median per channel, ``diffuse_scale``), so that the map's texture
+is the views' at the working size and not the network's at its grid (``--no-pixel-albedo``: the
+median alone; clipped to [0, 1] either way). Taking the network's diffuse map
 as absolute instead made the flash term over-shoot most views, b ≈ 0 and the insertion black
 (issue 13). Without known intensities one ``a`` for every view is fitted with ``b`` and the maps
 are taken as they are. The lighting written is the network's times ``b``: in photo units.
 
 **The multi-view specular fit** (:func:`fit_specular`, default on; ``--no-view-fit`` keeps the
 network's specular and roughness maps). The small MAIR model's specular is coarse
-(docs/mair_eval.md: F0 0.032 RMSE on a test split of dielectrics at 0.04; the first shipped
-model, trained a fifth as long, 0.09). The views say more: each view's flash puts its highlight at another place of the sample, so
-per pixel the nine views sample the lobe at nine angles while the albedo and the environment's
-diffuse light are the same in all. For each hypothesis of F0 (grey: 0.04, the dielectrics of the
-measured table, or 0.25 / 0.5 / 0.9, a metal) and roughness (20 values, 0.05–1; every other one
-first, then the two beside the best), constant over the sample, the re-render is fitted to the
-views as above (α per pixel, ``b``) at :data:`FIT_SIZE` and its residual kept; the hypothesis of
-least residual replaces the network's maps when it explains the views better than they do
-(``relative_residual`` < 1 in ``estimate.json`` under ``view_fit``). Then ``b`` is fitted
-per channel: with the specular known, the lighting's colour is the views' beyond the flash (one
-``b`` left the network's lighting colour in the albedo: on training samples of real sets, a grey
-fabric's diffuse came out 0.68 / 0.29 / 0.06). Needs the flash intensities (``capture.json`` or
-``--flash-intensity``). On 8 training-set samples of ``configs/data_real_multiview_train.toml``
-(not the test split) it took the mean per-map RMSE from 0.130 to 0.082 (diffuse 0.187 → 0.075,
-specular 0.087 → 0.007) with the first shipped model; on the multi-view test split with the
-current one (docs/mair_eval.md) from 0.0624 to 0.0585 (specular 0.032 → 0.008, diffuse 0.082 →
-0.071, but roughness 0.101 → 0.120: the network's roughness map beats the one fitted value), about
-6 s per estimate at 256² on two cores. What it cannot do: a
-roughness map (one value for the sample); a mirror-like surface (on one of those samples, a facade
-of roughness 0.06, the fit read 1.0).
+(docs/mair_eval.md: F0 0.032 RMSE on a test split of dielectrics at 0.04; the first shipped model,
+trained a fifth as long, 0.09). The views say more: each view's flash puts its highlight at another
+place of the sample, so per pixel the nine views sample the lobe at nine angles while the albedo and
+the environment's diffuse light are the same in all. For each hypothesis of F0 (grey: 0.04, the
+dielectrics of the measured table, or 0.25 / 0.5 / 0.9, a metal) and roughness (20 values, 0.05–1;
+every other one first, then the two beside the best), constant over the sample, the re-render is
+fitted to the views as above (α per pixel, ``b``) at :data:`FIT_SIZE` and its residual kept; the
+hypothesis of least residual replaces the network's maps when it explains the views better than they
+do (``relative_residual`` < 1 in ``estimate.json`` under ``view_fit``). Then ``b`` is fitted per
+channel: with the specular known, the lighting's colour is the views' beyond the flash (one ``b``
+left the network's lighting colour in the albedo: on training samples of real sets, a grey fabric's
+diffuse came out 0.68 / 0.29 / 0.06). Needs the flash intensities (``capture.json`` or
+``--flash-intensity``). On 8 training-set samples of ``configs/data_real_multiview_train.toml`` (not
+the test split) it took the mean per-map RMSE from 0.130 to 0.082 (diffuse 0.187 → 0.075, specular
+0.087 → 0.007) with the first shipped model; on the multi-view test split with the current one
+(docs/mair_eval.md) from 0.0624 to 0.0585 (specular 0.032 → 0.008, diffuse 0.082 → 0.071, but
+roughness 0.101 → 0.120: the network's roughness map beats the one fitted value), about 6 s per
+estimate at 256² on two cores. What it cannot do: a roughness map (one value for the sample); a
+mirror-like surface (on one of those samples, a facade of roughness 0.06, the fit read 1.0).
 
 **Outputs** (beside those of :mod:`.outputs`: ``maps/``, ``inputs/``, ``rerender/``,
 ``residual/`` per view name, ``novel/``, ``estimate.json``, ``report.html``):
@@ -114,7 +116,7 @@ import json
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 
@@ -186,6 +188,13 @@ class MultiViewConfig:
         "the specular F0 and roughness fitted to the nine views (module docstring, 'The multi-view "
         "specular fit'); --no-view-fit keeps the network's",
         flag="--view-fit",
+    )
+    pixel_albedo: bool = option(
+        True,
+        "the diffuse map's texture read off the views pixel by pixel (the re-render fit's α, where "
+        "at least 3 views see the pixel; module docstring, 'Exposure and units'); --no-pixel-albedo "
+        "keeps the network's map times one factor per channel",
+        flag="--pixel-albedo",
     )
 
 
@@ -615,6 +624,26 @@ class Scales:
     b: tuple[float, float, float]
     diffuse: tuple[float, float, float] = (1.0, 1.0, 1.0)
     residual: float = 0.0  # the views' squared residual at (a, b, α), summed over the masks
+    alpha: np.ndarray | None = field(default=None, repr=False)  # α per pixel and channel (H, W, 3)
+    seen: np.ndarray | None = field(default=None, repr=False)  # (H, W): α counts there (enough views)
+
+    def pixel_factor(self) -> np.ndarray | None:
+        """The diffuse factor per pixel (H, W, 3): α where enough views saw the pixel, kept within
+        :data:`PIXEL_ALBEDO_RANGE` of the median ``diffuse`` (per channel), the median elsewhere;
+        None when α was not fitted (unknown flash intensities)."""
+        if self.alpha is None or self.seen is None:
+            return None
+        median = np.asarray(self.diffuse, np.float32)
+        alpha = np.clip(self.alpha, median / PIXEL_ALBEDO_RANGE, median * PIXEL_ALBEDO_RANGE)
+        return np.where(self.seen[..., None], alpha, median).astype(np.float32)
+
+
+#: How far the per-pixel diffuse factor α may stray from its median (a factor either way): a
+#: specular highlight the fit's constant F0 and roughness miss lands in α (a dark green sample of the
+#: validation set came out 0.06 / 0.08 / 0.14 for 0.011 / 0.006 / 0.005). Chosen on
+#: ``configs/data_real_multiview_val.toml`` (16 samples): diffuse RMSE 0.0693 with the median alone,
+#: 0.0624 with α unclipped, 0.0604 within 2×, 0.0601 within 1.5×.
+PIXEL_ALBEDO_RANGE = 2.0
 
 
 #: Lighting scales :func:`fit_scales` tries (times b₀, the scale at which the lighting alone
@@ -665,7 +694,7 @@ def fit_scales(
         seen = seen & seen_g
     al = np.concatenate(alphas, -1)
     diffuse = tuple(float(np.median(al[..., c][seen])) if seen.any() else 1.0 for c in range(3))
-    return Scales(list(map(float, known)), tuple(bs), diffuse, res)
+    return Scales(list(map(float, known)), tuple(bs), diffuse, res, al.astype(np.float32), seen)
 
 
 def _fit_known_flash(p, fd, fs, ed, es, w, a):
@@ -751,7 +780,8 @@ def _fit_unknown_flash(p, f, e, w) -> Scales:
 
 
 def scale_diffuse(maps, parts: RerenderParts, factor) -> tuple[object, RerenderParts]:
-    """``maps`` with the diffuse map times ``factor`` (3,), clipped to [0, 1], and ``parts`` to
+    """``maps`` with the diffuse map times ``factor`` ((3,), or (H, W, 3) per pixel), clipped to
+    [0, 1], and ``parts`` to
     match (the diffuse parts are linear in the diffuse map, pixel by pixel)."""
     old = np.asarray(maps.diffuse, np.float32)
     new = np.clip(old * np.asarray(factor, np.float32), 0.0, 1.0).astype(np.float32)
@@ -1084,7 +1114,8 @@ def estimate_views(
     log(f"re-rendering the {VIEW_COUNT} views")
     parts = rerender_parts(maps, pred.lighting, shots, work)
     scales = fit_scales(photos, parts, masks, factors, colour=specular_fit is not None)
-    maps, parts = scale_diffuse(maps, parts, scales.diffuse)
+    per_pixel = scales.pixel_factor() if cfg.pixel_albedo else None
+    maps, parts = scale_diffuse(maps, parts, scales.diffuse if per_pixel is None else per_pixel)
     tick("re-render")
     stage("rerender", t0)
     return ViewsEstimate(
