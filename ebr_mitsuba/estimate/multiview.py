@@ -84,7 +84,9 @@ diffuse came out 0.68 / 0.29 / 0.06). Needs the flash intensities (``capture.jso
 the test split) it took the mean per-map RMSE from 0.130 to 0.082 (diffuse 0.187 → 0.075, specular
 0.087 → 0.007) with the first shipped model; on the multi-view test split with the current one
 (docs/mair_eval.md) from 0.0624 to 0.0585 (specular 0.032 → 0.008, diffuse 0.082 → 0.071, but
-roughness 0.101 → 0.120: the network's roughness map beats the one fitted value), about 6 s per
+roughness 0.101 → 0.120: the network's roughness map beats the one fitted value there; on the
+validation set, configs/data_real_multiview_val.toml, keeping the network's roughness with the
+fitted F0 was the worse of the two: roughness 0.086 → 0.106, diffuse 0.060 → 0.070), about 6 s per
 estimate at 256² on two cores. What it cannot do: a roughness map (one value for the sample); a
 mirror-like surface (on one of those samples, a facade of roughness 0.06, the fit read 1.0).
 
