@@ -7,6 +7,7 @@ import os
 import platform
 import statistics
 import time
+from functools import partial
 from pathlib import Path
 
 QUIET_CORES = 0.25  # other processes using less than this many cores on average: a quiet machine
@@ -118,19 +119,38 @@ def named_runs(var: str, hint: str, required: bool = True) -> list[tuple[str, Pa
     return out
 
 
+def _sample_record(sample: Path) -> dict:
+    return json.loads((sample / "sample.json").read_text())
+
+
+def lobes_emitter(sample: Path, record: dict | None = None):
+    """``(emitter factory, lobes)`` of the SG lobes of the environment sample ``sample`` was
+    rendered under (its ``env.json``: the environment itself, or the lobes fitted to its HDR map),
+    in photo units (× the sample's exposure); None when it has none. ``record``: its
+    ``sample.json``, when already read."""
+    from ..scene import sg_emitter_dict
+    from ..sgenv import SGEnvironment
+
+    record = _sample_record(sample) if record is None else record
+    env = record.get("env") or {}
+    if not env.get("lobes"):
+        return None
+    lobes = SGEnvironment.load(sample / env.get("file", "env.json"))
+    return partial(sg_emitter_dict, lobes, float(record["camera"]["exposure"])), lobes
+
+
 def truth_emitter(sample: Path):
     """``(emitter factory, description)`` of the environment sample ``sample`` was rendered under,
     in photo units (× the sample's exposure); None for a dark sample."""
     from ..data.renderers import rotated_envmap_dict
-    from ..scene import sg_emitter_dict
-    from ..sgenv import SGEnvironment
 
-    record = json.loads((sample / "sample.json").read_text())
+    record = _sample_record(sample)
     env, exposure = record.get("env") or {}, float(record["camera"]["exposure"])
     if env.get("type") == "equirect":
         path, rotation, scale = env["map"]["path"], float(env["rotation"]), float(env["scale"]) * exposure
         return (lambda: rotated_envmap_dict(path, rotation, scale)), f"{env['map']['name']} (HDR map)"
-    if env.get("lobes"):
-        lobes = SGEnvironment.load(sample / env.get("file", "env.json"))
-        return (lambda: sg_emitter_dict(lobes, exposure)), f"{lobes.num_lobes} SG lobes"
+    made = lobes_emitter(sample, record)
+    if made is not None:
+        factory, lobes = made
+        return factory, f"{lobes.num_lobes} SG lobes"
     return None

@@ -42,12 +42,13 @@ import os
 import tempfile
 import time
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
-from ._common import machine, named_runs, truth_emitter
+from ._common import lobes_emitter, machine, named_runs, truth_emitter
 from .models import _recording, _row, _sheet, _small, training_summary
 
 DEFAULT_OUT = "docs"
@@ -180,21 +181,6 @@ SWAPS = (  # the insertion's error taken apart: each plate swaps one part of the
 )
 
 
-def truth_lobes_emitter(sample: Path):
-    """The emitter factory of the SG lobes fitted to the environment ``sample`` was rendered under
-    (its ``env.json``, in photo units), or None when it has none."""
-    from ..scene import sg_emitter_dict
-    from ..sgenv import SGEnvironment
-
-    record = json.loads((sample / "sample.json").read_text())
-    env = record.get("env") or {}
-    path = sample / env.get("file", "env.json")
-    if not env.get("lobes") or not path.is_file():
-        return None
-    lobes, exposure = SGEnvironment.load(path), float(record["camera"]["exposure"])
-    return lambda: sg_emitter_dict(lobes, exposure)
-
-
 def insertions(estimates: list, truths: list, samples: list[Path], res: int, spp: int, log=print) -> dict:
     """The default insertion (module docstring) into each estimate and its truth: per sample the
     relative RMSE of the estimate's against the truth's, the truth's noise floor (seed 1 against
@@ -214,15 +200,15 @@ def insertions(estimates: list, truths: list, samples: list[Path], res: int, spp
         emitter, described = made
         fov = est.shots[len(est.shots) // 2].fov
         env = est.lighting.pixel_environment()
-        lighting = lambda env=env: sg_emitter_dict(env)  # noqa: E731
+        lighting = partial(sg_emitter_dict, env)
         plate = Plate(sample, "estimate", est.maps, fov, lighting)
         swaps = {
             "maps": Plate(sample, "estimate", est.maps, fov, emitter),
             "lighting": Plate(sample, "estimate", truth, fov, lighting),
         }
-        lobes = truth_lobes_emitter(sample)
+        lobes = lobes_emitter(sample)
         if lobes is not None:
-            swaps["lobes"] = Plate(sample, "estimate", truth, fov, lobes)
+            swaps["lobes"] = Plate(sample, "estimate", truth, fov, lobes[0])
         log(f"[bench mair] insertion into {sample.name} ({res}², {spp} spp, {3 + len(swaps)} renders)")
         r = measure(plate, Plate(sample, "capture", truth, fov, emitter), "diffuse", res, spp, others=swaps)
         rows.append(
@@ -547,7 +533,7 @@ def _page(record, summaries, runs, ds, seconds, inserted, figure: bool) -> str:
     ]
     ins = record["insertion"]
     if ins:
-        ratio = [r["rel_rmse"] / r["noise_floor"] if r["noise_floor"] > 0 else float("inf") for r in ins]
+        ratio = [_ratio(r["rel_rmse"], r) for r in ins]
         lines += [
             f"`ebr insert`'s default object (a grey diffuse sphere a third of the sample wide) on the "
             f"first run's estimate with the view fit (`ebr estimate --views`' default) of the first "

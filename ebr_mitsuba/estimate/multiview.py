@@ -783,8 +783,8 @@ def _fit_unknown_flash(p, f, e, w) -> Scales:
 
 def scale_diffuse(maps, parts: RerenderParts, factor) -> tuple[object, RerenderParts]:
     """``maps`` with the diffuse map times ``factor`` ((3,), or (H, W, 3) per pixel), clipped to
-    [0, 1], and ``parts`` to
-    match (the diffuse parts are linear in the diffuse map, pixel by pixel)."""
+    [0, 1], and ``parts`` to match (the diffuse parts are linear in the diffuse map, pixel by
+    pixel)."""
     old = np.asarray(maps.diffuse, np.float32)
     new = np.clip(old * np.asarray(factor, np.float32), 0.0, 1.0).astype(np.float32)
     ratio = np.where(old > 0, new / np.where(old > 0, old, 1.0), 0.0).astype(np.float32)
