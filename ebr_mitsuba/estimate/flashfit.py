@@ -318,6 +318,19 @@ snow 0.725 → 0.60 for 0.61, and makes others read smooth, a brick set 0.54 →
 0.0570 at the estimate's normal map and 0.0653 at its unshrunk slopes (better by over 0.01 in 5,
 worse in 10). Even perfect normals do not remove the over-read on average.
 
+Tried and dropped (2026-12-07): roughness by tone. Real tile and brick sets tie roughness to
+albedo (per-pixel correlation −0.94 to −0.99 for three tile sets, +0.98 for a brick set), and the
+true roughness as a least-squares line in log albedo per material would lower the validation
+captures' roughness RMSE a lot (acg_Bricks020 0.090 → 0.020). So the profile was read twice more,
+on the pixels darker and brighter than the median of a tone image (the no-flash shot, or its
+geometric mean with the flash-only ratio), the map made as a step or a line between the two
+halves' roughnesses. On the 18 dielectric validation captures (``configs/data_real_val.toml``)
+whose fit the estimate keeps, the halves read differences the truth does not have (a fabric 1.00
+/ 0.68, a concrete 0.905 / 0.805) and on the glazed tile set they were made for the wrong way
+round (grout 0.205, tiles 0.07 for a truth of rough grout and tiles at 0.13–0.16): the held-out
+re-render of that capture went 0.377 → 0.999–1.194 (line / step) and the roughness RMSE rose in
+most captures. Half the pixels do not give a ring profile precise enough for a second roughness.
+
 Where the error comes from (``ebr bench flash-fit``, ``docs/bench/flash_fit.md``): on noise-free
 renders of the validation captures' own true maps the fitted roughness is off by an RMS of 0.102
 against 0.122 from the photos (89 dielectric captures of ``configs/data_real_val.toml``,

@@ -240,6 +240,18 @@ def _shots(inputs: Inputs) -> dict[str, Shot]:
     return shots
 
 
+def refine_options_for(options: RefineConfig, flash_fit, shading_fit) -> RefineConfig:
+    """The refinement's options for one capture: with ``weighting`` noise, the normals are
+    refined only where the shading normals were read (:mod:`.shading_normals`: a dielectric below
+    the glint limit); a metal's or a glossy sample's normals, whose glints move far more steeply
+    with the normal than diffuse shading does, stay fixed (``docs/estimate.md``)."""
+    if options.weighting != "noise" or "normal" in options.fixed:
+        return options
+    if flash_fit is not None and shading_fit is not None and not flash_fit.metal:
+        return options
+    return dataclasses.replace(options, fixed=tuple(options.fixed) + ("normal",))
+
+
 def known_flash_intensity(cfg: EstimateConfig, inputs: Inputs) -> tuple[float | None, str | None]:
     """The near flash intensity in photo units when the capture states it (``flash_intensity``,
     else ``capture.json``) and its source; (None, None) when it must be fitted."""
@@ -703,7 +715,8 @@ def run_estimate(
 
             fit_targets = _refine_targets(cfg.refine, work_inputs, shots, targets, mask)
             before = net_errors if fit_targets is targets else None
-            refined = refine(maps, env, fit_targets, cfg.refine, progress, before=before)
+            refine_cfg = refine_options_for(cfg.refine, flash_fit, shading_fit)
+            refined = refine(maps, env, fit_targets, refine_cfg, progress, before=before)
         release_memory()
         if refined.stopped:
             log(f"note: refinement {refined.budget_note()}")
