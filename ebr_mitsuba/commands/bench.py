@@ -1,7 +1,7 @@
 """Measure speed against error and write the tables and plots (docs/bench/ in a checkout).
 
   ebr bench [renderer|generate|extract-sg|estimate|sizes|models|fivelight|mair|insert|flash-fit|
-             normals|all]
+             normals|refine|all]
             [--out DIR] [--quick] [--json]
 
 Each benchmark writes ``OUT/<name>.md`` (a Markdown table with the reference it was measured
@@ -42,7 +42,10 @@ against, and the PNG plots it links) and returns its path:
 * ``normals``: ``ebr estimate``'s shading normals on validation captures, flat, without and with the
   relief read off the flash / no-flash ratio's residual: normal RMSE, mean per-map RMSE, held-out
   re-render, the normals' spread, a picture (writes ``normals.md``; needs ``EBR_NORMALS_DATA`` or
-  ``EBR_VAL_DATA``).
+  ``EBR_VAL_DATA``);
+* ``refine``: test-time refinement judged by the maps and by held-out lights: each refinement
+  variant against the same estimates without it, how often it lowers the mean per-map RMSE, the
+  held-out re-render and both (writes ``refine.md``; needs ``EBR_REFINE_DATA`` or ``EBR_VAL_DATA``).
 
 Default ``--out``: inside a checkout of ebr-mitsuba (the current directory or one above it holds
 the project's ``pyproject.toml``) the checkout's ``docs/bench`` (``docs`` for ``models``,
@@ -87,6 +90,7 @@ BENCHMARKS = (
     "insert",
     "flash-fit",
     "normals",
+    "refine",
 )
 OUTSIDE_CHECKOUT = Path("ebr-bench")
 PROJECT = "ebr-mitsuba"
