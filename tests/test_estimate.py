@@ -494,8 +494,21 @@ def test_estimate_refines_against_the_flash_only_image(tmp_path, capsys, fake_ne
     assert set(refined) >= {"flash", "noflash", "mean"}
     assert all(np.isfinite(refined[s]["rmse"]) for s in ("flash", "noflash"))
     assert refined["flash"]["rmse"] != summary["rerender_error"]["network"]["flash"]["rmse"]
+    assert summary["refine"]["target"] == "flash-only" and summary["refine"]["weighting"] == "signal"
     code, _, err = _estimate(args + ["--refine-target", "flash"], capsys)
     assert code == 2 and "--refine-target" in err and "flash-only" in err
+    # noise weighting: recorded with the maps it held fixed (the normals too without shading normals)
+    noise = ["--refine-weighting", "noise", "--refine-fixed", "specular", "roughness", "--json"]
+    code, stdout, err = _estimate(
+        args + ["--flash-intensity", "10", "--refine-target", "flash-only"] + noise, capsys
+    )
+    assert code == 0, err
+    record = json.loads(stdout)["refine"]
+    assert record["weighting"] == "noise" and {"specular", "roughness"} <= set(record["fixed"])
+    shading = json.loads(stdout).get("shading_normals") or {}
+    assert ("normal" in record["fixed"]) == (not shading.get("applied", False))
+    code, _, err = _estimate(args + ["--refine-weighting", "loud"], capsys)
+    assert code == 2 and "--refine-weighting" in err
 
 
 def test_estimate_near_far_from_capture_dir(tmp_path, capsys, fake_net):

@@ -778,6 +778,9 @@ def run_estimate(
             "seconds_budget": cfg.refine.seconds,
             "stopped": refined.stopped,
             "budget_note": refined.budget_note(),
+            "target": cfg.refine.target,
+            "weighting": cfg.refine.weighting,
+            "fixed": list(refine_cfg.fixed),  # with the normals rule of refine_options_for
         },
         "prediction_timings": {
             k: float(v)
