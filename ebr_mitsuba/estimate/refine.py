@@ -113,9 +113,15 @@ as this model reads it, so it moves them little: the acceptance of issue 15 (bot
 the test cases) is not met, and the weighting stays off by default. (An earlier form of the
 excess, the plain mean square instead of the median-based spread, took a glossy tile's misjudged
 highlight for diffuse error: test split 14 % both lower, but acg_Tiles078's mean per-map RMSE
-0.0167 → 0.0208.) Known limit: from a start already at the noise floor the objective's optimum is within
-about τ = 0.001 of it, which Adam's steps cannot resolve (the best iterate then keeps the start);
-a closed-form per-pixel update of the diffuse map (the render is linear in it) is the next step.
+0.0167 → 0.0208.) Looser normals on the same validation captures: τ_n 0.1 alone changes
+nothing (the normals' rate, 0.002, bounds their steps); with ``normal_lr`` 0.005 too, both lower
+in 46 % and the held-out re-render lower in 71 %, but the normal RMSE worse on average (+0.001)
+and the mean per-map RMSE 0.04247 → 0.04234 (against 0.04203): not adopted. Known limit: from a
+start already at the noise floor the objective's optimum is within about τ = 0.001 of it, which
+Adam's steps cannot resolve (the best iterate then keeps the start); a closed-form per-pixel
+update of the diffuse map (the render is linear in it) is the next step (a prototype on the
+validation captures: per-map RMSE lower in 38 %, both in 38 %; its update low-passed over 17 × 17
+pixels, 62 % and 38 %).
 
 Fixed maps (``fixed``, ``--refine-fixed MAP ...``): the named maps are not optimised (no Adam
 state; they keep the start's values at every level), e.g. ``specular roughness`` to keep the
