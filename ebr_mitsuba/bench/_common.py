@@ -100,6 +100,16 @@ def data_set_paths(*variables: str) -> list[Path]:
     return [Path(p) for p in text.split(":") if p.strip()]
 
 
+def validation_sets(var: str) -> list[Path]:
+    """A benchmark's validation data sets: those named in ``$var``, else in ``$EBR_VAL_DATA``."""
+    return data_set_paths(var, "EBR_VAL_DATA")
+
+
+def validation_note(var: str, page: str) -> str | None:
+    """None when :func:`validation_sets` finds data sets, else the line saying how to name them."""
+    return None if validation_sets(var) else f"set ${var} (or $EBR_VAL_DATA); see docs/bench/{page}"
+
+
 def named_runs(var: str, hint: str, required: bool = True) -> list[tuple[str, Path]]:
     """The training runs named in ``$var`` (``NAME=RUN_DIR`` separated by ``;``), in order, each
     with ``RUN_DIR/model.pt``; an :class:`~ebr_mitsuba.errors.InputError` ending in ``hint`` for a

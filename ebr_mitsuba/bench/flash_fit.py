@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ._common import data_set_paths, machine
+from ._common import machine, validation_note, validation_sets
 
 PAGE = "flash_fit.md"
 METAL_F0 = 0.1  # a capture whose true specular map averages above this is a metal (left out)
@@ -65,11 +65,11 @@ def _log(msg: str) -> None:
 
 
 def data_sets() -> list[Path]:
-    return data_set_paths("EBR_FLASHFIT_DATA", "EBR_VAL_DATA")
+    return validation_sets("EBR_FLASHFIT_DATA")
 
 
 def unavailable() -> str | None:
-    return None if data_sets() else "set $EBR_FLASHFIT_DATA (or $EBR_VAL_DATA); see docs/bench/flash_fit.md"
+    return validation_note("EBR_FLASHFIT_DATA", PAGE)
 
 
 def capture_fit(root: Path, index: int, nominal: float, far: bool = False):

@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ._common import data_set_paths, machine
+from ._common import machine, validation_note, validation_sets
 
 PAGE = "normals.md"
 VARIANTS = ("flat", "albedo-following", "with relief")
@@ -61,11 +61,11 @@ def _log(msg: str) -> None:
 
 
 def data_sets() -> list[Path]:
-    return data_set_paths("EBR_NORMALS_DATA", "EBR_VAL_DATA")
+    return validation_sets("EBR_NORMALS_DATA")
 
 
 def unavailable() -> str | None:
-    return None if data_sets() else "set $EBR_NORMALS_DATA (or $EBR_VAL_DATA); see docs/bench/normals.md"
+    return validation_note("EBR_NORMALS_DATA", PAGE)
 
 
 def spread(normal: np.ndarray) -> float:

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ._common import data_set_paths, machine
+from ._common import machine, validation_note, validation_sets
 
 PAGE = "refine.md"
 QUICK_SAMPLES = 1
@@ -58,11 +58,11 @@ def _log(msg: str) -> None:
 
 
 def data_sets() -> list[Path]:
-    return data_set_paths("EBR_REFINE_DATA", "EBR_VAL_DATA")
+    return validation_sets("EBR_REFINE_DATA")
 
 
 def unavailable() -> str | None:
-    return None if data_sets() else "set $EBR_REFINE_DATA (or $EBR_VAL_DATA); see docs/bench/refine.md"
+    return validation_note("EBR_REFINE_DATA", PAGE)
 
 
 def _is_test_split(root: Path) -> bool:

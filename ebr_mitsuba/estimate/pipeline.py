@@ -714,9 +714,17 @@ def run_estimate(
                 steps(step, total, f"{size}x{size}, loss {loss:.4g}")
 
             fit_targets = _refine_targets(cfg.refine, work_inputs, shots, targets, mask)
-            before = net_errors if fit_targets is targets else None
+            same = fit_targets is targets  # the network's re-renders are the refinement's start
             refine_cfg = refine_options_for(cfg.refine, flash_fit, shading_fit)
-            refined = refine(maps, env, fit_targets, refine_cfg, progress, before=before)
+            refined = refine(
+                maps,
+                env,
+                fit_targets,
+                refine_cfg,
+                progress,
+                before=net_errors if same else None,
+                before_renders=net_renders if same else None,
+            )
         release_memory()
         if refined.stopped:
             log(f"note: refinement {refined.budget_note()}")

@@ -679,8 +679,13 @@ def noise_variance(image: np.ndarray, mask: np.ndarray) -> float:
     r = (centre - neigh)[ok]
     if r.size < 10:
         return float(np.var(y)) + 1e-12
-    mad = np.median(np.abs(r - np.median(r, axis=0)), axis=0)
-    return float(np.mean((1.4826 * mad) ** 2) / 1.25) + 1e-12
+    return _robust_square(r - np.median(r, axis=0)) / 1.25 + 1e-12
+
+
+def _robust_square(r: np.ndarray) -> float:
+    """The mean over channels of (1.4826 × median |r|)² for (N, C) values ``r``: their mean square
+    for Gaussian values about 0, unmoved by a minority of outliers."""
+    return float(np.mean((1.4826 * np.median(np.abs(r), axis=0)) ** 2))
 
 
 NOISE_LR_PER_SIGMA = 0.4  # weighting noise: a logit map's rate is at most this × its prior deviation
@@ -704,8 +709,7 @@ def adaptive_diffuse_sigma(maps: SVBRDF, targets: list[ShotTarget], renders: dic
             continue
         x = np.asarray(renders[t.shot.name], np.float64)
         y = np.asarray(t.image, np.float64)
-        r = x[m] - y[m]
-        spread = float(np.mean((1.4826 * np.median(np.abs(r), axis=0)) ** 2))  # not centred: a bias counts
+        spread = _robust_square(x[m] - y[m])  # not centred: a bias counts
         excess += max(spread - noise_variance(y, m), 0.0)
         gain += float(np.mean((x[m] / rho[m]) ** 2))
     tau = math.sqrt(excess / gain) if gain > 0 else ADAPTIVE_SIGMA_RANGE[1]
@@ -744,6 +748,9 @@ class _Level:
         self.shape = prior.shape
         self.opts = render_options(config.mode, config.spp, config.irradiance_table)
         self.shots = [t.shot for t in targets]
+        # the prior's weight per map: 1, or 1 / τ² with noise weighting (module docstring)
+        noise = config.weighting == "noise"
+        self.prior_scale = {k: 1.0 / v**2 if noise else 1.0 for k, v in zip(PRIOR_KEYS, config.prior_sigma)}
         self.init = {
             k: mi.TensorXf(v)
             for k, v in (
@@ -798,11 +805,9 @@ class _Level:
             priors = [("diffuse", dm.diffuse), ("normal", n_enc)]
             if not config.basis:  # the basis is the prior of specular and roughness
                 priors += [("specular", dm.specular), ("roughness", dm.roughness)]
-            sigma = dict(zip(PRIOR_KEYS, config.prior_sigma))
             for name, cur in priors:
                 d = cur - self.init[name]
-                scale = 1.0 / sigma[name] ** 2 if config.weighting == "noise" else 1.0
-                loss += config.prior_weight * scale * dr.mean(dr.ravel(d * d))
+                loss += config.prior_weight * self.prior_scale[name] * dr.mean(dr.ravel(d * d))
         if config.smooth_weight > 0 and h > 1 and w > 1:
             for cur in (dm.roughness, dm.specular, dm.normal):
                 tv = dr.mean(dr.ravel(dr.abs(cur[1:, :] - cur[:-1, :]))) + dr.mean(
@@ -907,14 +912,15 @@ def refine(
     config: RefineConfig,
     progress: Callable[[int, int, float, int], None] | None = None,
     before: dict | None = None,
+    before_renders: dict[str, np.ndarray] | None = None,
 ) -> RefineResult:
     """Optimise ``maps`` (and with ``config.lobes`` the lobes of ``env``) against ``targets``.
 
     ``progress(step, steps, loss, size)`` is called at every loss read (``size``: the level's
     side). Returns the refined maps/lobes and the re-render errors of the fast renderer before and
-    after (``before``: those of ``maps``/``env`` when the caller has them already, from
-    :func:`rerender_errors`). Coarse to fine above ``config.coarse_size``, within
-    ``config.seconds`` when given (module docstring).
+    after (``before``, ``before_renders``: those of ``maps``/``env`` and the renders behind them
+    when the caller has them already, from :func:`rerender_errors`). Coarse to fine above
+    ``config.coarse_size``, within ``config.seconds`` when given (module docstring).
     """
     from ..materials import resample_svbrdf
 
@@ -929,12 +935,13 @@ def refine(
                 f"the maps' size"
             )
     table = config.irradiance_table
-    start_renders = None
-    if before is None or (config.steps > 0 and config.weighting == "noise" and config.adaptive_prior):
+    adaptive = config.steps > 0 and config.weighting == "noise" and config.adaptive_prior
+    start_renders = before_renders if before is not None else None
+    if before is None or (adaptive and start_renders is None):
         before, start_renders = rerender_errors(maps, env, targets, config.mode, config.spp, table)
     if config.steps == 0:
         return RefineResult(maps, env, before, before, time.perf_counter() - t0)
-    if start_renders is not None and config.weighting == "noise" and config.adaptive_prior:
+    if adaptive:
         sigma = list(config.prior_sigma)
         sigma[PRIOR_KEYS.index("diffuse")] = adaptive_diffuse_sigma(maps, targets, start_renders)
         config = dataclasses.replace(config, prior_sigma=tuple(sigma))
