@@ -1,6 +1,6 @@
 """Synthetic captures rendered with Mitsuba: the photos of a setup plus the ground truth.
 
-:func:`capture` renders every shot of a setup (:func:`ebr_mitsuba.geometry.setup_shots`) of one
+:func:`capture` renders every shot of a setup (:func:`ebr_mitsuba.geometry.capture_shots`) of one
 material under one environment and writes a capture directory, atomically (built under a
 temporary name and renamed; on any error no output directory appears):
 
@@ -11,6 +11,7 @@ file                   content
                        near: ``flash``, ``noflash``; near-far: + ``far_flash``, ``far_noflash``;
                        five-light: ``light0`` … ``light4`` (point light only, environment off);
                        multi-view: ``view{a}{b}_flash`` for the 3×3 grid (flash + environment)
+                       and ``noflash``, the centre camera without its flash
 ``maps/``              the ground-truth SVBRDF exactly as rendered (a material directory, written by
                        :func:`ebr_mitsuba.materials.save_material_dir`), in the sample grid
 ``env.json``           the SG environment as rendered (lobes × ``env_scale``; SG environments only:
@@ -63,7 +64,7 @@ from tqdm import tqdm
 from . import __version__
 from .errors import InputError
 from .fsutil import atomic_dir
-from .geometry import SETUPS, Shot, setup_shots
+from .geometry import SETUPS, Shot, capture_shots
 from .imageio import write_exr
 from .materials import save_material_dir
 from .scene import INTEGRATORS, PATH_MAX_DEPTH, shot_scene_dict, svbrdf_bsdf_dict
@@ -196,7 +197,7 @@ def capture(
         raise TypeError(f"capture: config must be a CaptureConfig, got {config!r}")
     cfg = dataclasses.replace(config or CaptureConfig(), **options)
     res, spp, seed, integrator, env_scale = cfg.res, cfg.spp, cfg.seed, cfg.integrator, cfg.env_scale
-    shots = setup_shots(setup)
+    shots = capture_shots(setup)
     out_dir = Path(out_dir)
     _check_out_dir(out_dir)
     material_source, material_spec = _as_material(material)

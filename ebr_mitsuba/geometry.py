@@ -122,6 +122,19 @@ def setup_shots(setup: str, intensity: float = DEFAULT_FLASH_INTENSITY) -> list[
     raise InputError(f"unknown capture setup {setup!r}; use one of {', '.join(SETUPS)}")
 
 
+def capture_shots(setup: str, intensity: float = DEFAULT_FLASH_INTENSITY) -> list[Shot]:
+    """The shots ``ebr capture`` renders for ``setup``: :func:`setup_shots`, and for ``multi-view``
+    also the centre camera without its flash (``noflash``, the near setup's no-flash shot). The
+    multi-view networks read the nine flash views only; the no-flash view gives the environment's
+    level and colour to the lighting's scale fit of ``ebr estimate --views``
+    (``ebr_mitsuba.estimate.multiview``, "Exposure and units"). Generated data sets keep
+    :func:`setup_shots`."""
+    shots = setup_shots(setup, intensity)
+    if setup == "multi-view":
+        shots.append(near_shot(False, intensity=intensity))
+    return shots
+
+
 def pixel_positions(height: int, width: int) -> np.ndarray:
     """Surface points (H, W, 3) seen by the pixels of the sample grid (z = 0)."""
     j = np.arange(width, dtype=np.float64)

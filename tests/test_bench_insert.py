@@ -1,6 +1,7 @@
 """``ebr bench insert --quick``: a synthetic capture estimated by the shipped model, its insertion
 composited and rendered whole against the truth and the truth's noise floor (48², 16 spp:
-seconds)."""
+seconds); the same capture multi-view, estimated by the shipped MAIR model with and without its
+no-flash view."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ def test_quick_page_measures_composite_render_and_floor(tmp_path, monkeypatch):
     page = path.read_text()
     assert path.name == "insert.md" and "Quick mode" in page
     record = json.loads((tmp_path / "insert.json").read_text())
-    (row,) = record["rows"]  # quick: one capture, the diffuse sphere
+    row, mv = record["rows"]  # quick: one capture, the diffuse sphere; near, then multi-view
     assert row["group"] == "synthetic" and row["material"] == "diffuse" and row["composited"]
     assert row["floor"] > 0 and row["composite"] > 0 and row["render"] > 0
     assert row["composite"] != row["render"]
@@ -26,5 +27,11 @@ def test_quick_page_measures_composite_render_and_floor(tmp_path, monkeypatch):
     # the same estimate with its horizon lobes dropped, measured beside it
     assert row["dropped_ratio"] > 0 and f"{row['dropped_ratio']:.1f}× |" in page
     assert "horizon lobes dropped" in page
-    for name in ("insert_ratios.png", "insert_0.png"):
+    for name in ("insert_ratios.png", "insert_0.png", "insert_1.png"):
         assert (tmp_path / name).is_file() and f"]({name})" in page
+    # multi-view: composited into the capture's no-flash view; beside it the 9 flash views alone
+    assert mv["group"] == bench.MULTIVIEW and mv["material"] == "diffuse" and mv["composited"]
+    assert mv["floor"] == pytest.approx(row["floor"])  # the same truth (maps, environment, seeds)
+    assert mv["ratio"] == pytest.approx(mv["composite"] / mv["floor"]) and mv["dropped_ratio"] > 0
+    assert "## Multi-view captures" in page and f"**{mv['ratio']:.1f}×**" in page
+    assert f"{mv['dropped_ratio']:.1f}× |" in page and "the 9 flash views only" in page

@@ -134,7 +134,7 @@ EXPECTED_FILES = {
     "near": ["flash.exr", "noflash.exr"],
     "near-far": ["flash.exr", "noflash.exr", "far_flash.exr", "far_noflash.exr"],
     "five-light": [f"light{k}.exr" for k in range(5)],
-    "multi-view": [f"view{a}{b}_flash.exr" for a in range(3) for b in range(3)],
+    "multi-view": [f"view{a}{b}_flash.exr" for a in range(3) for b in range(3)] + ["noflash.exr"],
 }
 
 
@@ -184,6 +184,14 @@ def test_capture_writes_setup(tmp_path, setup, rng, default_env):
         # Oblique views see past the sample edge; emitters are hidden, so those pixels are black.
         assert np.any(read_exr(out / "view00_flash.exr").sum(-1) == 0)
         assert np.all(read_exr(out / "view11_flash.exr").sum(-1) > 0)
+        # the centre camera without its flash: the near setup's no-flash shot, lit by the environment
+        assert shots["noflash"]["flash"] is None and shots["noflash"]["env"]
+        assert (
+            shots["noflash"]["camera"] == shots["view11_flash"]["camera"]
+            and shots["noflash"]["in_sample_grid"]
+        )
+        flash_only = read_exr(out / "view11_flash.exr") - read_exr(out / "noflash.exr")
+        assert flash_only.mean() > 0
 
 
 def test_five_light_ignores_environment(tmp_path, rng, default_env):

@@ -22,12 +22,14 @@ from cli_run import assert_each_refused, estimate_json, nonblank_lines
 
 from ebr_mitsuba.cli import main
 from ebr_mitsuba.estimate import multiview
+from ebr_mitsuba.geometry import capture_shots
 from ebr_mitsuba.imageio import read_exr, read_image, write_exr
 from ebr_mitsuba.nets.mair_views import multiview_shots
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")  # conftest: torch on one thread
 
-VIEWS = [s.name for s in multiview_shots()]
+FLASH_VIEWS = [s.name for s in multiview_shots()]  # what the network reads
+VIEWS = [s.name for s in capture_shots("multi-view")]  # what ebr capture writes: + the no-flash view
 
 
 @pytest.fixture(scope="module")
@@ -37,7 +39,8 @@ def model(mair_tiny_run) -> Path:
 
 @pytest.fixture(scope="module")
 def capture_mv(tmp_path_factory) -> Path:
-    """``ebr capture --setup multi-view`` at 32² (4 spp): view{a}{b}_flash.exr + capture.json."""
+    """``ebr capture --setup multi-view`` at 32² (4 spp): view{a}{b}_flash.exr, noflash.exr +
+    capture.json."""
     out = tmp_path_factory.mktemp("cap") / "cap_mv"
     argv = ["capture", "--material", "procedural:plaster:2", "--env", "procedural:1", "--setup"]
     argv += ["multi-view", "--res", "32", "--spp", "4", "--out", str(out)]
@@ -53,6 +56,8 @@ def test_estimate_views_writes_every_output(model, capture_mv, tmp_path, capsys)
     assert summary["model_grid"] == 32 and summary["resolution"] == 32 and summary["lobes"] == 3
     assert list(summary["inputs"]["paths"]) == VIEWS
     assert summary["flash"]["view11_flash"] == {"intensity": 10.0, "source": "capture.json"}
+    assert summary["flash"]["noflash"] == {"intensity": 0.0, "source": "no flash"}
+    assert summary["exposure"]["to_reference"]["noflash"] is None  # the network does not see it
     assert summary == json.loads((out / "estimate.json").read_text())
     # every file listed is there and opens
     for rel in summary["files"]:
@@ -166,7 +171,7 @@ def test_the_network_sees_the_rectified_views(model, capture_mv, tmp_path):
     multiview.run_multiview(cfg, predictor=Spy())
     meta = json.loads((capture_mv / "capture.json").read_text())
     assert seen["views"].shape == (9, 32, 32, 3) and seen["weights"].shape == (9, 32, 32)
-    assert [list(c) for c in seen["cameras"]] == [s["camera"] for s in meta["shots"]]
+    assert [list(c) for c in seen["cameras"]] == [s["camera"] for s in meta["shots"] if s["flash"]]
     centre = read_exr(capture_mv / "view11_flash.exr")
     assert np.allclose(seen["views"][4], centre, atol=1e-5)  # the near camera: the identity
     assert seen["weights"][4].min() == 1 and 0.8 < seen["weights"][0].mean() < 1
@@ -241,7 +246,7 @@ def test_the_true_maps_re_render_the_capture(tmp_path):
     cfg = multiview.MultiViewConfig(views=str(cap), out=str(tmp_path / "est"))
     summary = multiview.run_multiview(cfg, predictor=_DarkPredictor(maps))
     errors = summary["rerender_error"]["network"]
-    assert max(errors[v]["rel_rmse"] for v in VIEWS) < 0.01, errors  # measured 0.2–0.3 %
+    assert max(errors[v]["rel_rmse"] for v in FLASH_VIEWS) < 0.01, errors  # measured 0.2–0.3 %
     # without the intensities in capture.json the flash is fitted: the capture's 10 W/sr
     meta = json.loads((cap / "capture.json").read_text())
     for shot in meta["shots"]:
@@ -294,7 +299,7 @@ def test_the_environment_is_scaled_against_the_known_flash(tmp_path):
             return ViewsPrediction(bright, lobe)
 
     est = multiview.estimate_views(multiview.MultiViewConfig(views=str(cap), out=str(tmp_path / "e")), Off())
-    assert est.a == [1.0] * 9  # the capture's 10 W/sr at exposure 1
+    assert est.a == [1.0] * 9 + [0.0]  # the capture's 10 W/sr at exposure 1; the no-flash view
     assert np.allclose(np.asarray(est.b) * net, 1, atol=0.05), est.b  # per channel (the view fit ran)
     assert est.specular_fit is not None and est.specular_fit.f0 == 0.04
     assert np.allclose(est.lighting.intensity, amplitude, rtol=0.05), est.lighting.intensity
@@ -338,6 +343,55 @@ def test_the_pixel_albedo_reads_the_texture_off_the_views(tmp_path):
         rmse[on] = float(np.sqrt(np.mean(err**2)))
         interior[on] = float(np.abs(err * inside).max())
     assert interior[True] < 0.01 and rmse[True] < 0.05 < 0.08 < rmse[False], (rmse, interior)
+
+
+def test_a_no_flash_view_pins_the_lighting_scale():
+    """fit_scales on synthetic parts (seed 0): 9 flash views whose flash part falls off across the
+    frame differently per view, the environment's diffuse part the same in every view, the
+    albedo free per pixel, the true lighting scale b = (0.9, 1, 1.2). The flash parts carry a 3 %
+    model error per pixel and view (relief a flat map misses, the shading the fit cannot know):
+    from the flash views alone b is read off how each pixel changes from flash to flash and comes
+    out 4–7 % low; with the no-flash view (flash factor 0) it is within 1 % (measured 0.2 %)."""
+    from ebr_mitsuba.estimate.multiview import RerenderParts, fit_scales
+
+    rng = np.random.default_rng(0)
+    n = 24
+    yy, xx = np.mgrid[:n, :n] / n - 0.5
+    grid = [(ox, oy) for oy in (0.6, 0, -0.6) for ox in (-0.6, 0, 0.6)]
+    falloff = np.stack([1 + 0.3 * (ox * xx + oy * yy) for ox, oy in grid])
+    fd = 0.5 * np.repeat(falloff[..., None], 3, -1).astype(np.float32)
+    ed = np.full((9, n, n, 3), 0.3, np.float32)
+    alpha = rng.uniform(0.2, 0.8, (n, n, 3))
+    b_true = np.array([0.9, 1.0, 1.2])
+    photos = alpha * (fd * (1 + 0.03 * rng.standard_normal((9, n, n, 1))) + b_true * ed)
+    noflash = alpha * b_true * ed[0]
+
+    def fit(views, flash_d, env_d, known):
+        parts = RerenderParts(flash_d, np.zeros_like(flash_d), env_d, np.zeros_like(env_d))
+        masks = [np.ones((n, n), bool)] * len(views)
+        return np.asarray(fit_scales(list(views), parts, masks, known, colour=True).b) / b_true
+
+    alone = fit(photos, fd, ed, [1.0] * 9)
+    both = fit(
+        np.concatenate([photos, noflash[None]]),
+        np.concatenate([fd, np.zeros_like(fd[:1])]),
+        np.concatenate([ed, ed[:1]]),
+        [1.0] * 9 + [0.0],
+    )
+    assert np.allclose(both, 1, atol=0.01), both
+    assert np.all(np.abs(both - 1) < np.abs(alone - 1)), (alone, both)
+    # unknown flash intensities: one a for the flash views, none for the no-flash view
+    lit = [True] * 9 + [False]
+    parts = RerenderParts(
+        np.concatenate([fd, fd[:1]]),
+        np.zeros((10, n, n, 3), np.float32),
+        np.concatenate([ed, ed[:1]]),
+        np.zeros((10, n, n, 3), np.float32),
+    )
+    exact = np.concatenate([0.7 * (fd + 2.0 * ed), (0.7 * 2.0 * ed[0])[None]])  # α = 0.7 as the maps say
+    scales = fit_scales(list(exact), parts, [np.ones((n, n), bool)] * 10, None, lit=lit)
+    assert scales.a[-1] == 0 and np.allclose(scales.a[:9], 0.7, rtol=1e-6), scales.a
+    assert np.allclose(scales.b, 1.4, rtol=1e-6), scales.b
 
 
 def test_the_pixel_factor_is_bounded_and_falls_back_to_the_median():
@@ -425,7 +479,8 @@ def _bad_captures(capture_mv: Path, tmp: Path) -> dict:
     (nojson / "capture.json").unlink()
     badjson = copy("badjson")
     (badjson / "capture.json").write_text("{not json")
-    eight = edit(copy("eight"), lambda m: m["shots"].pop())
+    eight = edit(copy("eight"), lambda m: m["shots"].pop(0))
+    twins = edit(copy("twins"), lambda m: m["shots"][-1].update(name="view00_flash"))
     ten = edit(copy("ten"), lambda m: m["shots"].append(dict(m["shots"][0], file="view00_flash.exr")))
     near = edit(copy("near"), lambda m: m.update(setup="near"))
     nocam = edit(copy("nocam"), lambda m: m["shots"][3].pop("camera"))
@@ -434,8 +489,9 @@ def _bad_captures(capture_mv: Path, tmp: Path) -> dict:
         "mismatched sizes": (small, f"{small / 'view20_flash.exr'} is 16x16 but"),
         "no capture.json": (nojson, f"--views {nojson}: no capture.json"),
         "invalid capture.json": (badjson, f"{badjson / 'capture.json'}: not readable JSON"),
-        "eight views": (eight, f"{eight / 'capture.json'}: 8 shot records; a multi-view capture has 9"),
-        "ten views": (ten, f"{ten / 'capture.json'}: 10 shot records"),
+        "eight views": (eight, f"{eight / 'capture.json'}: 8 flash views; a multi-view capture has 9"),
+        "ten views": (ten, f"{ten / 'capture.json'}: 10 flash views"),
+        "two of one name": (twins, f"{twins / 'capture.json'}: two shot records have the same name"),
         "another setup": (near, f"{near / 'capture.json'}: a 'near' capture; --views needs a 'multi-view'"),
         "no camera": (nocam, f"{nocam / 'capture.json'}: shot view10_flash has no 'camera'"),
         "not a directory": (tmp / "nothing", f"--views {tmp / 'nothing'}: not a directory"),

@@ -6,7 +6,8 @@
 M is a material directory or procedural:FAMILY:SEED; E is an env.json, an equirectangular
 .exr/.hdr or procedural:SEED. DIR receives one EXR per shot (near: flash, noflash; near-far: +
 far_flash, far_noflash; five-light: light0..light4, environment off; multi-view: 3x3
-view{a}{b}_flash), the ground-truth maps in DIR/maps, env.json (SG environments) and
+view{a}{b}_flash and noflash, the centre camera without its flash), the ground-truth maps in
+DIR/maps, env.json (SG environments) and
 capture.json (cameras, lights, intensities, spp, seeds, variant and versions). The directory is
 written atomically; an existing capture directory at DIR is replaced, anything else is refused.
 ``--json`` prints {"out", "setup", "files", "seconds", "spp", "resolution", "seed", "variant"}.

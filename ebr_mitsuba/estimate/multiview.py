@@ -12,29 +12,32 @@ same writers (:mod:`.outputs`, :mod:`.report`) and the same atomic directory: co
 all, an earlier estimate directory replaced, anything else refused.
 
 **Inputs.** ``DIR`` is the directory of ``ebr capture --setup multi-view``: its ``capture.json``
-(``"format": "ebr-capture/1"``, ``"setup": "multi-view"``) lists the 9 shots, each with
+(``"format": "ebr-capture/1"``, ``"setup": "multi-view"``) lists the 9 flash views and, optionally,
+views without their flash (``ebr capture`` adds one: ``noflash``, the centre camera), each with
 
 =======================  ==========================================================================
 key                      meaning
 =======================  ==========================================================================
 ``name``                 ``view{a}{b}_flash``: row a (0: the cameras at y = +0.6, 1: y = 0, 2:
-                         y = −0.6) and column b (0: x = −0.6, 1: x = 0, 2: x = +0.6) of the grid
+                         y = −0.6) and column b (0: x = −0.6, 1: x = 0, 2: x = +0.6) of the grid;
+                         ``noflash`` for the centre camera without its flash (any unique name)
 ``file``                 the image in ``DIR`` (``view{a}{b}_flash.exr`` as written by the capture;
                          PNG and JPEG are read as sRGB)
 ``camera``, ``target``,  the pinhole camera: position, the point it looks at, its up vector
 ``up``
 ``fov``                  horizontal field of view in degrees (``fov_axis`` "x")
-``flash``,               the view's flash (a point light, at the camera in the 3×3 setup) and its
-``flash_intensity``      intensity in W/sr at the image's exposure (absent: fitted)
+``flash``,               the view's flash (a point light, at the camera in the 3×3 setup; null: a
+``flash_intensity``      view without its flash) and its intensity in W/sr at the image's exposure
+                         (absent: fitted)
 =======================  ==========================================================================
 
 A photographed set can be estimated by writing such a ``capture.json`` by hand beside its nine
 images. ``DIR`` may also be a sample of a generated multi-view data set: its ``sample.json`` is read
 as the record (:func:`sample_capture_record`). Refused with one line (exit 2) and nothing written:
-no or an unreadable ``capture.json``, one of another setup, another count than 9 shot records, a
-view file missing or unreadable, views of different sizes or under 32 pixels, a shot record without
-a camera, a camera below the sample, more than half of the pixels saturated, a checkpoint of another
-kind, no checkpoint.
+no or an unreadable ``capture.json``, one of another setup, another count than 9 flash views, two
+records of one name or file, a view file missing or unreadable, views of different sizes or under
+32 pixels, a shot record without a camera, a camera below the sample, more than half of the pixels
+saturated, a checkpoint of another kind, no checkpoint.
 
 **Rectification** (:mod:`.rectify`): each view is resampled onto the sample grid of
 ``docs/conventions.md`` by projecting the grid's surface points into its camera; the points a
@@ -54,10 +57,16 @@ lit by view k's flash at the reference intensity (:func:`ebr_mitsuba.nets.mair_r
 multiview_renders`), ``E_k`` the maps under the predicted per-pixel SGs read as the radiance they
 mean, the one ``ebr insert`` renders (:func:`env_renders`: the SGs' irradiance over the
 hemisphere above each pixel, their specular reflection by SG convolution), ``a_k`` the known flash
-factor and ``b ≥ 0`` by least squares over the in-frame, unsaturated pixels of all views. With the
-a_k known, the diffuse parts of ``F_k`` and ``E_k`` take a factor free per pixel and channel while
-b is fitted, so that the flash, a light of known intensity, sets the albedo's level and what the
-views show beyond it sets the environment's; the diffuse map is then brought to photo units by
+factor (0 for a view without its flash) and ``b ≥ 0`` by least squares over the in-frame,
+unsaturated pixels of all views. With the a_k known, the diffuse parts of ``F_k`` and ``E_k`` take
+a factor free per pixel and channel while b is fitted, so that the flash, a light of known
+intensity, sets the albedo's level and what the views show beyond it sets the environment's. From
+the flash views alone that is how each pixel changes from flash to flash, a few per cent of it,
+which shading the maps miss moves (a 3 % error per pixel and view took b 4–7 % low in
+``tests/test_estimate_views.py``; on a wood capture under a blue sky the lighting came out 0.75 /
+0.67 / 0.49 of the truth per channel); the no-flash view of ``ebr capture`` shows ``α b E`` alone
+and pins b down (0.96 / 0.94 / 0.86 there; docs/mair.md, "Estimating"). The diffuse map is then
+brought to photo units by
 that factor, per pixel where at least :data:`MIN_VIEWS_PER_PIXEL` views saw it (within
 :data:`PIXEL_ALBEDO_RANGE` of its median per channel, ``diffuse_scale``), so that the map's texture
 is the views' at the working size and not the network's at its grid (``--no-pixel-albedo``: the
@@ -171,7 +180,7 @@ class MultiViewConfig:
     directory (module docstring)."""
 
     views: str = option(
-        meaning="directory of 'ebr capture --setup multi-view' (9 views and capture.json) or a "
+        meaning="directory of 'ebr capture --setup multi-view' (its views and capture.json) or a "
         "generated multi-view sample (sample.json; docs/mair.md, 'Estimating'); instead of --flash",
         flag="--views",
         metavar="DIR",
@@ -303,17 +312,21 @@ def sample_capture_record(path: Path) -> dict:
 
 
 def resolve_views(views: str | Path) -> tuple[list[ViewShot], list[str]]:
-    """The 9 views of the capture directory ``views`` (module docstring, "Inputs"), in record
-    order, and warnings about them."""
+    """The views of the capture directory ``views`` (module docstring, "Inputs"): the 9 flash views
+    and any views without their flash, in record order, and warnings about them."""
     folder = Path(views)
     if not folder.is_dir():
         raise InputError(f"--views {views}: not a directory; {_FIX}")
     meta = read_capture_json(folder)
     where = Path(meta.get("record_path") or folder / CAPTURE_JSON)
     records = meta.get("shots")
-    n = len(records) if isinstance(records, list) else 0
+    records = records if isinstance(records, list) else []
+    n = sum(1 for r in records if not isinstance(r, dict) or r.get("flash") is not None)
     if n != VIEW_COUNT:
-        raise InputError(f"{where}: {n} shot records; a multi-view capture has {VIEW_COUNT} (the 3×3 grid)")
+        raise InputError(
+            f"{where}: {n} flash views; a multi-view capture has {VIEW_COUNT} (the 3×3 grid), "
+            f'plus optionally views without their flash ("flash": null)'
+        )
     shots, warnings = [], []
     defaults = {s.name: s for s in setup_shots(SETUP)}
     for k, rec in enumerate(records):
@@ -349,10 +362,12 @@ def resolve_views(views: str | Path) -> tuple[list[ViewShot], list[str]]:
                 f"{name}: camera at {list(camera)}, {math.dist(camera, ref.camera):.2f} from the position "
                 f"the model was trained with ({list(ref.camera)}); expect a bias"
             )
-        if flash is None or math.dist(flash, camera) > POSITION_WARN:
+        if flash is not None and math.dist(flash, camera) > POSITION_WARN:
             warnings.append(f"{name}: the flash is not at the camera; the model was trained with it there")
-    if len({s.path for s in shots}) != VIEW_COUNT:
+    if len({s.path for s in shots}) != len(shots):
         raise InputError(f"{where}: two shot records name the same file; give one image per view")
+    if len({s.name for s in shots}) != len(shots):
+        raise InputError(f"{where}: two shot records have the same name; give each view its own")
     return shots, warnings
 
 
@@ -659,12 +674,21 @@ def _views_sum(x, y, w) -> np.ndarray:
 
 
 def fit_scales(
-    photos, parts: RerenderParts, masks, known: list[float] | None, colour: bool = False
+    photos,
+    parts: RerenderParts,
+    masks,
+    known: list[float] | None,
+    colour: bool = False,
+    lit: list[bool] | None = None,
 ) -> Scales:
     """The re-render's scales (module docstring, "Exposure and units") by least squares over
     ``masks`` (in-frame, unsaturated pixels of each view); ``photos`` (N, H, W, 3) per view,
     ``parts`` their :func:`rerender_parts`; ``known``: the flash factors a_k (None: one fitted a);
-    ``colour``: b fitted per channel (the lighting's colour too, as after the view fit; else one b).
+    ``colour``: b fitted per channel (the lighting's colour too, as after the view fit; else one b);
+    ``lit``: per view, whether its flash fired (None: every view's). A view without its flash has
+    the flash factor 0 (in ``known`` too): it shows ``α (b E_d) + b E_s`` alone, the environment's
+    level and colour on the albedo the flash views set, which pins b down (module docstring,
+    "Exposure and units").
 
     With the a_k known, view k is modelled as ``α(p) (a_k F_d,k + b E_d,k) + a_k F_s,k + b E_s,k``
     with a diffuse factor α ≥ 0 free per pixel and channel: the network's diffuse map has no
@@ -682,7 +706,8 @@ def fit_scales(
     fd, fs = parts.flash_diffuse.astype(np.float64), parts.flash_specular.astype(np.float64)
     ed, es = parts.env_diffuse.astype(np.float64), parts.env_specular.astype(np.float64)
     if known is None:
-        return _fit_unknown_flash(p, fd + fs, ed + es, w)
+        on = np.ones(len(p)) if lit is None else np.asarray(lit, np.float64)
+        return _fit_unknown_flash(p, (fd + fs) * on[:, None, None, None], ed + es, w, on)
     a = np.asarray(known, np.float64)[:, None, None, None]
     groups = [slice(c, c + 1) for c in range(3)] if colour else [slice(None)]  # b per group
     bs, alphas, res, seen = [], [], 0.0, True
@@ -755,8 +780,9 @@ def _fit_known_flash(p, fd, fs, ed, es, w, a):
     return b, al, residual(b), seen
 
 
-def _fit_unknown_flash(p, f, e, w) -> Scales:
-    """One a for every view and b ≥ 0 (module docstring), the maps as they are."""
+def _fit_unknown_flash(p, f, e, w, on) -> Scales:
+    """One a for every flash view (``on`` 1; its flash part ``f`` is 0 where 0) and b ≥ 0 (module
+    docstring), the maps as they are."""
 
     def dot(x, y):
         return float(np.sum(_views_sum(x, y, w)))
@@ -778,7 +804,7 @@ def _fit_unknown_flash(p, f, e, w) -> Scales:
         raise InputError(
             "--views: the views show no light from their flashes; check the files, or give --flash-intensity"
         )
-    return Scales([a] * len(p), (b, b, b))
+    return Scales([float(a * x) for x in on], (b, b, b))
 
 
 def scale_diffuse(maps, parts: RerenderParts, factor) -> tuple[object, RerenderParts]:
@@ -1052,11 +1078,12 @@ def estimate_views(
     t0 = time.perf_counter()
     path = model_path(cfg.checkpoint) if predictor is None else None
     shots, warnings = resolve_views(cfg.views)
+    lit = [s.flash is not None for s in shots]  # the network reads the flash views; the fit all
     camera_views = read_views(shots, cfg.saturation_level, warnings)
     if cfg.flash_intensity is not None:  # finite and > 0: the frozen config checked it
-        known, known_source = [float(cfg.flash_intensity)] * VIEW_COUNT, "--flash-intensity"
-    elif all(s.intensity is not None for s in shots):
-        known, known_source = [float(s.intensity) for s in shots], CAPTURE_JSON
+        known, known_source = [float(cfg.flash_intensity) if on else 0.0 for on in lit], "--flash-intensity"
+    elif all(s.intensity is not None for s in shots if s.flash is not None):
+        known, known_source = [float(s.intensity) if on else 0.0 for s, on in zip(shots, lit)], CAPTURE_JSON
     else:
         known, known_source = None, None
     stage("inputs", t0)
@@ -1079,21 +1106,25 @@ def estimate_views(
         log(f"warning: {w}")
 
     t0 = time.perf_counter()
-    log(f"rectifying the {VIEW_COUNT} views onto the sample grid")
+    log(f"rectifying the {len(shots)} views onto the sample grid")
     views = rectify_views(shots, camera_views, work, tick)
     stage("rectify", t0)
 
     t0 = time.perf_counter()
     log(f"estimating the maps and the per-pixel lighting at {grid}x{grid} (working size {work}x{work})")
     names = [s.name for s in shots]
-    to_reference = [DEFAULT_FLASH_INTENSITY / k for k in known] if known else [1.0] * VIEW_COUNT
-    stack = np.stack([views.images[n] * np.float32(f) for n, f in zip(names, to_reference)])
-    wts = np.stack([views.weights[n] for n in names])
+    # each flash view's factor to the reference exposure (None: a view without its flash)
+    to_reference = [
+        None if not on else DEFAULT_FLASH_INTENSITY / k if known else 1.0 for on, k in zip(lit, known or lit)
+    ]
+    flash_names = [n for n, on in zip(names, lit) if on]
+    stack = np.stack([views.images[n] * np.float32(f) for n, f in zip(names, to_reference) if f is not None])
+    wts = np.stack([views.weights[n] for n in flash_names])
     if work != grid:
         stack = np.stack([resize_area(v, (grid, grid)) for v in stack])
         wts = np.stack([resize_area(w[..., None], (grid, grid))[..., 0] >= 1 - 1e-6 for w in wts])
     pred = predictor.predict_views(
-        stack.astype(np.float32), wts.astype(np.float32), [s.camera for s in shots]
+        stack.astype(np.float32), wts.astype(np.float32), [s.camera for s in shots if s.flash is not None]
     )
     maps = pred.maps if work == grid else resample_svbrdf(pred.maps, work)
     if maps.shape != (work, work):
@@ -1113,9 +1144,9 @@ def estimate_views(
             maps = constant_specular(maps, specular_fit.f0, specular_fit.roughness)
         stage("view fit", t0)
         t0 = time.perf_counter()
-    log(f"re-rendering the {VIEW_COUNT} views")
+    log(f"re-rendering the {len(shots)} views")
     parts = rerender_parts(maps, pred.lighting, shots, work)
-    scales = fit_scales(photos, parts, masks, factors, colour=specular_fit is not None)
+    scales = fit_scales(photos, parts, masks, factors, colour=specular_fit is not None, lit=lit)
     per_pixel = scales.pixel_factor() if cfg.pixel_albedo else None
     maps, parts = scale_diffuse(maps, parts, scales.diffuse if per_pixel is None else per_pixel)
     tick("re-render")
@@ -1140,6 +1171,11 @@ def estimate_views(
     )
 
 
+def _finite_mean(values) -> float | None:
+    finite = [float(v) for v in values if v is not None and math.isfinite(v)]
+    return float(np.mean(finite)) if finite else None
+
+
 def run_multiview(
     cfg: MultiViewConfig,
     *,
@@ -1159,7 +1195,7 @@ def run_multiview(
     out, timings = stage.out, stage.timings
     path = model_path(cfg.checkpoint) if predictor is None else None
 
-    steps = VIEW_COUNT + 4
+    steps = len(resolve_views(cfg.views)[0]) + 4  # each view's rectification, network, re-render, files
     progress = None  # opened at the first step: the inputs and the model are checked before
 
     def tick(what: str) -> None:
@@ -1180,13 +1216,16 @@ def run_multiview(
         errors = {
             n: image_errors(renders[n], photos[k], m) for k, (n, m) in enumerate(zip(names, est.masks()))
         }
-        errors["mean"] = {
-            key: float(np.mean([errors[n][key] for n in names])) for key in ("rmse", "rel_rmse")
+        errors["mean"] = {  # over the views it is defined for (a black no-flash view has no rel_rmse)
+            key: _finite_mean([errors[n][key] for n in names]) for key in ("rmse", "rel_rmse")
         }
         lighting = est.lighting
         intensities = {
-            n: (est.a[k] * DEFAULT_FLASH_INTENSITY, est.known_source if known else "fitted")
-            for k, n in enumerate(names)
+            n: (
+                est.a[k] * DEFAULT_FLASH_INTENSITY,
+                "no flash" if s.flash is None else est.known_source if known else "fitted",
+            )
+            for k, (n, s) in enumerate(zip(names, shots))
         }
         folder = Path(cfg.views)
         geometry = folder / (CAPTURE_JSON if (folder / CAPTURE_JSON).is_file() else SAMPLE_JSON)
@@ -1255,7 +1294,7 @@ def run_multiview(
             files += outputs.write_shots(tmp, dict(zip(names, photos)), renders)
             files += write_weights(tmp, views.weights)
             files += write_lighting(tmp, est.prediction.lighting, est.b)
-            centre = shots[VIEW_COUNT // 2]
+            centre = min((s for s in shots if s.flash is not None), key=lambda s: math.hypot(*s.camera[:2]))
             files += outputs.write_novel(
                 maps, lighting.pixel_environment(), intensities[centre.name][0], tmp, float(centre.camera[2])
             )
