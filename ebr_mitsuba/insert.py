@@ -32,8 +32,10 @@ the render, and every other pixel is the photo times the render's ratio with / w
 object — the shadow and the light the object throws back, applied to what the camera saw
 (:func:`differential`). The plate then keeps the photo's own texture and light wherever the
 object leaves it alone, and the estimate is judged where the insertion changes the picture.
-``render`` (and any other camera, a multi-view estimate, a capture directory) renders the whole
-frame. The photo is the one the estimate fitted, on the sample grid and in its radiance units:
+``render`` (and any other camera, an estimate without a no-flash view, a capture directory)
+renders the whole frame; a multi-view estimate with the no-flash view of ``ebr capture --setup
+multi-view`` (named ``noflash``) is composited into it like a flash / no-flash one. The photo is
+the one the estimate fitted, on the sample grid and in its radiance units:
 ``rerender/noflash.exr`` − ``residual/noflash.exr`` (the residual is re-render − photo,
 :mod:`ebr_mitsuba.estimate.outputs`).
 
@@ -364,7 +366,8 @@ def load_estimate(directory) -> Plate:
 def estimate_photo(directory) -> np.ndarray | None:
     """The no-flash photo an estimate fitted, (H, W, 3) float32 in its radiance units:
     ``rerender/noflash.exr`` − ``residual/noflash.exr``; None when the estimate has no no-flash
-    shot (flash-only, five-light, multi-view). A present but unreadable pair is an InputError."""
+    shot (flash-only, five-light, multi-view of the flash views alone). A present but unreadable
+    pair is an InputError."""
     from .imageio import read_exr
 
     directory = Path(directory)
