@@ -376,6 +376,18 @@ renders) 0.127 → 0.126 on held-out materials and, on the photos, 0.103 → 0.0
 error 0.030 → 0.043 (better in 23, worse in 43). What one material's relief does to its profile
 does not tell another's.
 
+Measured, not adopted (2026-12-07): the diffuse level reads low on relief-heavy sets. Its mean
+over the estimate's diffuse map against the truth's was 0.85–0.90 for a thatch, three captures of
+a brick set and a rock of ``configs/data_real_val.toml`` and 0.95–1.0 for the flatter ones (one
+above 1 of the 14 dielectrics): a tilted pixel's co-located shading ``n·l`` is below a flat one's,
+and the relief's mean darkening is second order in the slopes, which the shading normals (shrunk,
+and blind to relief finer than a pixel) barely see (the truth's mean ``n·l / l_z`` 0.92–0.95 on
+those sets, the estimate's normals' 0.97–1.0). Dividing by the truth's own mean ``n_z`` would take
+the 22 dielectrics' mean diffuse RMSE 0.04467 → 0.04262 (the estimate's normals: 0.04397; the true
+mean level per channel: 0.04147), but a capture does not know its relief, and one factor for all
+(× 1.02, the best of 1.02–1.1) moved the set's diffuse RMSE 0.04595 → 0.04525 (all 24) and
+0.01661 → 0.01658 on the first 22 captures of ``configs/data_real_val2.toml``.
+
 Tried and dropped (2026-12-05): denoising the texture pattern with the no-flash shot's. Per band
 (the 3 × 3 detail and the rest) the two shots' pattern deviations were combined by their noise
 variances and shrunk by signal / (signal + noise), the signal power being the shots' covariance.
