@@ -378,8 +378,8 @@ does not tell another's.
 
 Measured, not adopted (2026-12-07): the diffuse level reads low on relief-heavy sets. Its mean
 over the estimate's diffuse map against the truth's was 0.85–0.90 for a thatch, three captures of
-a brick set and a rock of ``configs/data_real_val.toml`` and 0.95–1.0 for the flatter ones (one
-above 1 of the 14 dielectrics): a tilted pixel's co-located shading ``n·l`` is below a flat one's,
+a brick set and a rock of ``configs/data_real_val.toml`` and 0.95–1.0 for most flatter ones: a
+tilted pixel's co-located shading ``n·l`` is below a flat one's,
 and the relief's mean darkening is second order in the slopes, which the shading normals (shrunk,
 and blind to relief finer than a pixel) barely see (the truth's mean ``n·l / l_z`` 0.92–0.95 on
 those sets, the estimate's normals' 0.97–1.0). Dividing by the truth's own mean ``n_z`` would take
