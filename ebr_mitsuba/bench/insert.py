@@ -211,7 +211,8 @@ def _plot(rows: list[dict], path: Path) -> None:
     ax.barh(y - 0.2, [r["render_ratio"] for r in rows], 0.4, label="rendered whole")
     ax.barh(y + 0.2, [r["ratio"] for r in rows], 0.4, label="composited into the photo")
     ax.axvline(ACCEPT_RATIO, color="k", lw=1, ls="--", label="acceptance (2×)")
-    ax.set_yticks(y, [f"{r['case_short']} / {r['material']}" for r in rows], fontsize=7)
+    labels = [f"{r['case_short'].replace('procedural:', '')} / {r['material']}" for r in rows]
+    ax.set_yticks(y, labels, fontsize=7)
     ax.invert_yaxis()
     ax.set_xscale("log")
     ax.set_xlabel("insertion RMSE / truth-vs-truth RMSE")

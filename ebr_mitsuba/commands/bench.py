@@ -32,8 +32,9 @@ against, and the PNG plots it links) and returns its path:
   insertion against the truth, beside the EBREnv model on the same materials (writes
   ``mair_eval.md``; needs ``EBR_MAIR_DATA`` and ``EBR_MAIR_RUNS``; optionally ``EBR_TRAIN_DATA``,
   ``EBR_SPLIT_DATA``);
-* ``insert``: ``ebr insert``'s sphere in estimates of synthetic captures (and, with
-  ``EBR_SPLIT_DATA``, of test-split samples) against the truth and its noise floor, composited
+* ``insert``: ``ebr insert``'s sphere in estimates of synthetic captures (flash / no-flash, and
+  multi-view by the shipped MAIR model with and without the capture's no-flash view; with
+  ``EBR_SPLIT_DATA``, also test-split samples) against the truth and its noise floor, composited
   into the photo and rendered whole (writes ``insert.md``, a picture per capture and a plot);
 * ``flash-fit``: the flash-profile fit's roughness on validation captures against the same fit on
   noise-free renders of their true maps, as they are and with flat normals and / or a constant
