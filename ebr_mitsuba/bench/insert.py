@@ -368,7 +368,7 @@ def run(out_dir: Path, quick: bool = False) -> Path:
             for case in _capture_cases(tmp, s["captures"], s["res"], s["capture_spp"], predictor)
         ]
         cases += [
-            (MULTIVIEW, label, f"multi-view {short}", *rest, s["materials"])
+            (MULTIVIEW, f"{label} (multi-view)", f"multi-view {short}", *rest, s["materials"])
             for label, short, *rest in _multiview_cases(tmp, s["captures"], s["res"], s["capture_spp"])
         ]
         if split:
