@@ -65,7 +65,9 @@ the flash views alone that is how each pixel changes from flash to flash, a few 
 which shading the maps miss moves (a 3 % error per pixel and view took b 4–7 % low in
 ``tests/test_estimate_views.py``; on a wood capture under a blue sky the lighting came out 0.75 /
 0.67 / 0.49 of the truth per channel); the no-flash view of ``ebr capture`` shows ``α b E`` alone
-and pins b down (0.96 / 0.94 / 0.86 there; docs/mair.md, "Estimating"). The diffuse map is then
+and pins b down. Its pixels weigh as much in the least squares as the flash views' together
+(:func:`fit_scales`): at equal weights per pixel that wood's lighting came out 0.96 / 0.94 / 0.86,
+weighted 0.995 / 0.99 / 0.95 (docs/mair.md, "Estimating"). The diffuse map is then
 brought to photo units by
 that factor, per pixel where at least :data:`MIN_VIEWS_PER_PIXEL` views saw it (within
 :data:`PIXEL_ALBEDO_RANGE` of its median per channel, ``diffuse_scale``), so that the map's texture
@@ -688,7 +690,8 @@ def fit_scales(
     ``lit``: per view, whether its flash fired (None: every view's). A view without its flash has
     the flash factor 0 (in ``known`` too): it shows ``α (b E_d) + b E_s`` alone, the environment's
     level and colour on the albedo the flash views set, which pins b down (module docstring,
-    "Exposure and units").
+    "Exposure and units"). The views without a flash weigh as much in the sums as the flash views
+    together (each pixel of one no-flash view among nine flash views: 9 times a flash view's).
 
     With the a_k known, view k is modelled as ``α(p) (a_k F_d,k + b E_d,k) + a_k F_s,k + b E_s,k``
     with a diffuse factor α ≥ 0 free per pixel and channel: the network's diffuse map has no
@@ -702,12 +705,15 @@ def fit_scales(
     fitted with the maps as they are (α = 1): the flash's level and the albedo's cannot be told
     apart then."""
     w = np.stack([np.asarray(m, np.float64) for m in masks])
+    on = np.asarray([k > 0 for k in known] if known is not None else lit or [True] * len(w), bool)
+    if on.any() and not on.all():  # the no-flash views weigh as much as the flash views together
+        w[~on] *= on.sum() / (~on).sum()
     p = np.stack([np.asarray(x, np.float64) for x in photos])
     fd, fs = parts.flash_diffuse.astype(np.float64), parts.flash_specular.astype(np.float64)
     ed, es = parts.env_diffuse.astype(np.float64), parts.env_specular.astype(np.float64)
     if known is None:
-        on = np.ones(len(p)) if lit is None else np.asarray(lit, np.float64)
-        return _fit_unknown_flash(p, (fd + fs) * on[:, None, None, None], ed + es, w, on)
+        lit_ = on.astype(np.float64)
+        return _fit_unknown_flash(p, (fd + fs) * lit_[:, None, None, None], ed + es, w, lit_)
     a = np.asarray(known, np.float64)[:, None, None, None]
     groups = [slice(c, c + 1) for c in range(3)] if colour else [slice(None)]  # b per group
     bs, alphas, res, seen = [], [], 0.0, True
@@ -776,7 +782,7 @@ def _fit_known_flash(p, fd, fs, ed, es, w, a):
                 r2 = residual(x2)
         b = min((grid[k], (lo + hi) / 2), key=residual)
     al = alpha(b)[0]
-    seen = (w.sum(0) >= MIN_VIEWS_PER_PIXEL) & (hh[0] > 0).all(-1)
+    seen = ((w > 0).sum(0) >= MIN_VIEWS_PER_PIXEL) & (hh[0] > 0).all(-1)
     return b, al, residual(b), seen
 
 
