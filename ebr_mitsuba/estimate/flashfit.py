@@ -388,6 +388,13 @@ mean level per channel: 0.04147), but a capture does not know its relief, and on
 (× 1.02, the best of 1.02–1.1) moved the set's diffuse RMSE 0.04595 → 0.04525 (all 24) and
 0.01661 → 0.01658 on the first 22 captures of ``configs/data_real_val2.toml``.
 
+Tried and dropped (2026-12-07): the network's roughness map as the roughness's pattern around the
+fitted value (``r_fit + β (r_net − mean r_net)``), since one value per capture cannot beat the
+material's own constant. On ``configs/data_real_val.toml`` (24) the network map's deviations
+correlate with the truth's by −0.16 to +0.40 per capture (about 0 for most), and the roughness RMSE
+rose with β: 0.0666 / 0.0672 / 0.0688 / 0.0738 at β = 0 / 0.25 / 0.5 / 1 (the truth's own
+constant: 0.0571).
+
 Tried and dropped (2026-12-05): denoising the texture pattern with the no-flash shot's. Per band
 (the 3 × 3 detail and the rest) the two shots' pattern deviations were combined by their noise
 variances and shrunk by signal / (signal + noise), the signal power being the shots' covariance.
