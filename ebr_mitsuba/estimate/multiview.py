@@ -1121,7 +1121,7 @@ def estimate_views(
     names = [s.name for s in shots]
     # each flash view's factor to the reference exposure (None: a view without its flash)
     to_reference = [
-        None if not on else DEFAULT_FLASH_INTENSITY / k if known else 1.0 for on, k in zip(lit, known or lit)
+        None if not on else DEFAULT_FLASH_INTENSITY / known[i] if known else 1.0 for i, on in enumerate(lit)
     ]
     flash_names = [n for n, on in zip(names, lit) if on]
     stack = np.stack([views.images[n] * np.float32(f) for n, f in zip(names, to_reference) if f is not None])
