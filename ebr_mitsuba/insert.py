@@ -50,8 +50,11 @@ Truth (``truth``): a directory of ``ebr capture`` (``capture.json``): the same s
 view in the capture is reported as a warning). By default the truth is
 rendered with the same seed as the estimate, so that their sampling noise is correlated and
 mostly cancels in the difference; ``truth_seed`` makes it independent (the truth-vs-truth noise
-floor: ``ebr insert CAPTURE_DIR --truth CAPTURE_DIR --truth-seed 1``). ESTIMATE_DIR may itself
-be a capture directory (its true maps and environment).
+floor: ``ebr insert CAPTURE_DIR --truth CAPTURE_DIR --truth-seed 1``, at the same ``spp`` as
+the insertion it is compared with: the default 64 spp makes it twice the 256-spp floor).
+``noise_floor`` (``--noise-floor``) renders that floor in the same run (:func:`truth_again`) and
+reports the insertion's RMSE over it. ESTIMATE_DIR may itself be a capture directory (its true
+maps and environment).
 
 Errors in the inputs are :class:`~ebr_mitsuba.errors.InputError` (one line naming the file and
 the fix) raised before anything is rendered or written; the images are written atomically
@@ -202,6 +205,12 @@ class InsertConfig:
     mesh_up: str = option(
         DEFAULT_MESH_UP, "the mesh file's up axis, y (Wavefront's usual) or z", choices=MESH_UP, metavar="A"
     )
+    noise_floor: bool = option(
+        False,
+        "with --truth: render the truth once more with the next seed and report the truth-vs-truth "
+        "RMSE (noise_floor) and the insertion's RMSE over it (floor_ratio), issue 13's measure",
+        flag="--noise-floor",
+    )
 
     def __post_init__(self):
         check(self)
@@ -221,6 +230,16 @@ class InsertConfig:
         """The object's width in world units."""
         return self.scale * SAMPLE_WIDTH
 
+    @property
+    def true_seed(self) -> int:
+        """The truth render's seed: ``truth_seed``, else ``seed``."""
+        return self.seed if self.truth_seed is None else self.truth_seed
+
+    @property
+    def floor_seed(self) -> int:
+        """The seed of the truth's second render (the noise floor): the truth's next one."""
+        return (self.true_seed + 1) % 2**32
+
     def to_json(self) -> dict:
         return {
             "object": self.object,
@@ -233,7 +252,8 @@ class InsertConfig:
             "elevation": self.elevation,
             "background": self.background,
             "seed": self.seed,
-            "truth_seed": self.seed if self.truth_seed is None else self.truth_seed,
+            "truth_seed": self.true_seed,
+            "noise_floor": self.noise_floor,
             **({"mesh_up": self.mesh_up} if self.object not in OBJECTS else {}),
         }
 
@@ -251,6 +271,7 @@ INSERT_FLAGS = (
     "seed",
     "truth_seed",
     "mesh_up",
+    "noise_floor",
 )
 
 
@@ -660,7 +681,7 @@ def insertion_images(
     if photo is not None and shape is not None:
         renders.append(("render, no object", plate, cfg.seed, False))
     if truth is not None:
-        renders.append(("truth", truth, cfg.seed if cfg.truth_seed is None else cfg.truth_seed, True))
+        renders.append(("truth", truth, cfg.true_seed, True))
     images, seconds = {}, {}
     for key, p, seed, with_object in renders:
         if bar is not None:
@@ -682,6 +703,20 @@ def insertion_images(
         images["insert"] = differential(photo, images["render"], images.pop("render, no object"), coverage)
         seconds["composite"] = round(time.perf_counter() - t, 3)
     return images, seconds
+
+
+def truth_again(
+    truth: Plate, cfg: InsertConfig, res: int, shape: dict | None, fov: float, bar=None
+) -> np.ndarray:
+    """The truth's insertion (``shape``: the prepared :func:`object_dict`) rendered once more with
+    :attr:`InsertConfig.floor_seed` from the camera of field of view ``fov`` (the estimate's, as
+    :func:`insertion_images` renders the truth): against the first truth render its RMSE is the
+    truth-vs-truth noise floor at ``cfg.spp`` (issue 13's measure; ``--noise-floor``, ``ebr bench
+    insert``)."""
+    if bar is not None:
+        bar.set_postfix_str("truth again")
+    desc = scene_dict(truth, cfg, res, True, shape=dict(shape) if shape else None, fov=fov)
+    return render(desc, res, cfg.spp, cfg.floor_seed, tick=None if bar is None else bar.update)
 
 
 # -- outputs ---------------------------------------------------------------------------------------
@@ -768,7 +803,8 @@ def run_insert(estimate_dir, out, cfg: InsertConfig, truth_dir=None, progress: b
     res = cfg.res or min(plate.resolution, DEFAULT_MAX_RES)
     shape = object_dict(cfg)  # loads (and checks) a mesh file once
     composited = composites(plate, cfg)
-    renders = 1 + (truth is not None) + (composited and shape is not None)
+    floor = truth is not None and cfg.noise_floor
+    renders = 1 + (truth is not None) + (composited and shape is not None) + floor
     bar = tqdm(
         total=cfg.spp * renders,
         desc="insert",
@@ -779,6 +815,7 @@ def run_insert(estimate_dir, out, cfg: InsertConfig, truth_dir=None, progress: b
     )
     try:
         images, seconds = insertion_images(plate, cfg, res, shape, truth, bar)
+        again = truth_again(truth, cfg, res, shape, plate.fov, bar) if floor else None
     finally:
         bar.close()
     rendered = images.pop("render")
@@ -820,6 +857,10 @@ def run_insert(estimate_dir, out, cfg: InsertConfig, truth_dir=None, progress: b
         if composited:  # the same insertion rendered whole, for comparison
             summary["render_rmse"] = rmse(rendered, images["truth"])
             summary["render_rel_rmse"] = rel_rmse(rendered, images["truth"])
+        if again is not None:
+            summary["noise_floor"] = rmse(again, images["truth"])
+            floor_rmse = summary["noise_floor"]
+            summary["floor_ratio"] = summary["rmse"] / floor_rmse if floor_rmse > 0 else None
     summary["seconds"] = round(time.perf_counter() - t0, 3)
     return summary
 
@@ -844,4 +885,5 @@ __all__ = [
     "run_insert",
     "scene_dict",
     "side_by_side",
+    "truth_again",
 ]

@@ -209,6 +209,22 @@ def test_truth_equal_to_estimate_gives_zero(tmp_path, capsys, sun_capture):
     assert code == 0, err
     noise = json.loads(stdout)["rmse"]
     assert noise > 0
+    # --noise-floor: the truth once more with the next seed (here 2) against the truth (seed 1)
+    code, stdout, err = run_cli(
+        capsys, "insert", fake, "--truth", sun_capture, "--out", tmp_path / "f.png", "--spp", 4,
+        "--truth-seed", 1, "--noise-floor", "--json",
+    )  # fmt: skip
+    assert code == 0, err
+    floor = json.loads(stdout)
+    assert floor["rmse"] == noise and floor["noise_floor"] > 0 and floor["noise_floor"] != noise
+    assert floor["floor_ratio"] == pytest.approx(noise / floor["noise_floor"])
+    # with seeds 2 (estimate) and 1 (truth) the estimate is the truth's second render: ratio 1
+    code, stdout, err = run_cli(
+        capsys, "insert", sun_capture, "--truth", sun_capture, "--out", tmp_path / "g.png", "--spp", 4,
+        "--seed", 2, "--truth-seed", 1, "--noise-floor", "--json",
+    )  # fmt: skip
+    assert code == 0, err
+    assert json.loads(stdout)["floor_ratio"] == pytest.approx(1.0)
     other = _fake_estimate(tmp_path / "other", sun_capture, diffuse=0.2)
     code, stdout, err = run_cli(
         capsys, "insert", other, "--truth", sun_capture, "--out", tmp_path / "o.png", "--spp", 4, "--json"

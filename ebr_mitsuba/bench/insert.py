@@ -69,13 +69,13 @@ def measure(plate, truth, material: str, res: int, spp: int, dropped=None, other
     same estimate with its horizon lobes dropped), its insertion's ratio to the same floor; with
     ``others`` (name → plate), each one's insertion's relative RMSE against the same truth render
     (``row["others"]``), to tell which part of the plate the error comes from."""
-    from ..insert import InsertConfig, exposure, insertion_images, object_dict, side_by_side
+    from ..insert import InsertConfig, exposure, insertion_images, object_dict, side_by_side, truth_again
     from ..metrics import rel_rmse, rmse
 
     cfg = InsertConfig(material=material, spp=spp, res=res)
     shape = object_dict(cfg)
     images, _ = insertion_images(plate, cfg, res, shape, truth)
-    again = insertion_images(truth, replace(cfg, seed=1), res, shape)[0]["render"]  # another seed
+    again = truth_again(truth, cfg, res, shape, plate.fov)  # the next seed: ebr insert --noise-floor
     floor = rmse(again, images["truth"])
     row = {
         "composite": rmse(images["insert"], images["truth"]),
