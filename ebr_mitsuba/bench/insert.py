@@ -222,6 +222,15 @@ def _plot(rows: list[dict], path: Path) -> None:
     plt.close(fig)
 
 
+def _table_row(r: dict) -> str:
+    """A case's row of either table: RMSEs, floor, the ratios and the last column's alternative."""
+    return (
+        f"| {r['case']} | {r['material']} | {r['composite']:.5f} | {r['render']:.5f} | "
+        f"{r['floor']:.5f} | **{r['ratio']:.1f}×** | {r['render_ratio']:.1f}× | "
+        f"{r['dropped_ratio']:.1f}× |"
+    )
+
+
 def _page(
     rows: list[dict], pictures: list[tuple[str, str]], settings: dict, seconds: float, quick: bool
 ) -> str:
@@ -255,11 +264,7 @@ def _page(
     ]
     for r in rows:
         if r["group"] != MULTIVIEW:
-            lines.append(
-                f"| {r['case']} | {r['material']} | {r['composite']:.5f} | {r['render']:.5f} | "
-                f"{r['floor']:.5f} | **{r['ratio']:.1f}×** | {r['render_ratio']:.1f}× | "
-                f"{r['dropped_ratio']:.1f}× |"
-            )
+            lines.append(_table_row(r))
     mv = [r for r in rows if r["group"] == MULTIVIEW]
     if mv:
         lines += [
@@ -280,11 +285,7 @@ def _page(
             "|---|---|---:|---:|---:|---:|---:|---:|",
         ]
         for r in mv:
-            lines.append(
-                f"| {r['case']} | {r['material']} | {r['composite']:.5f} | {r['render']:.5f} | "
-                f"{r['floor']:.5f} | **{r['ratio']:.1f}×** | {r['render_ratio']:.1f}× | "
-                f"{r['dropped_ratio']:.1f}× |"
-            )
+            lines.append(_table_row(r))
         for material in dict.fromkeys(r["material"] for r in mv):
             sel = [r for r in mv if r["material"] == material]
             lines.append("")

@@ -705,15 +705,17 @@ def fit_scales(
     fitted with the maps as they are (α = 1): the flash's level and the albedo's cannot be told
     apart then."""
     w = np.stack([np.asarray(m, np.float64) for m in masks])
-    on = np.asarray([k > 0 for k in known] if known is not None else lit or [True] * len(w), bool)
+    if known is not None:
+        on = np.asarray(known) > 0
+    else:
+        on = np.ones(len(w), bool) if lit is None else np.asarray(lit, bool)
     if on.any() and not on.all():  # the no-flash views weigh as much as the flash views together
         w[~on] *= on.sum() / (~on).sum()
     p = np.stack([np.asarray(x, np.float64) for x in photos])
     fd, fs = parts.flash_diffuse.astype(np.float64), parts.flash_specular.astype(np.float64)
     ed, es = parts.env_diffuse.astype(np.float64), parts.env_specular.astype(np.float64)
     if known is None:
-        lit_ = on.astype(np.float64)
-        return _fit_unknown_flash(p, (fd + fs) * lit_[:, None, None, None], ed + es, w, lit_)
+        return _fit_unknown_flash(p, fd + fs, ed + es, w, on.astype(np.float64))
     a = np.asarray(known, np.float64)[:, None, None, None]
     groups = [slice(c, c + 1) for c in range(3)] if colour else [slice(None)]  # b per group
     bs, alphas, res, seen = [], [], 0.0, True
@@ -787,8 +789,9 @@ def _fit_known_flash(p, fd, fs, ed, es, w, a):
 
 
 def _fit_unknown_flash(p, f, e, w, on) -> Scales:
-    """One a for every flash view (``on`` 1; its flash part ``f`` is 0 where 0) and b ≥ 0 (module
-    docstring), the maps as they are."""
+    """One a for every flash view (``on`` 1 per view; its flash part ``f`` counts only there) and
+    b ≥ 0 (module docstring), the maps as they are."""
+    f = f * on[:, None, None, None]
 
     def dot(x, y):
         return float(np.sum(_views_sum(x, y, w)))
@@ -1070,12 +1073,14 @@ def estimate_views(
     log: Callable[[str], None] | None = None,
     tick: Callable[[str], None] | None = None,
     stage: Callable | None = None,
+    resolved: tuple[list[ViewShot], list[str]] | None = None,
 ) -> ViewsEstimate:
     """Read, rectify and estimate the capture of ``cfg.views`` with ``predictor`` (a
     :class:`~ebr_mitsuba.model.predictor.ViewsPredictor`, or None: ``cfg.checkpoint``) and fit the
     re-render's scales (module docstring); writes nothing. ``log``: stage messages; ``tick(what)``:
     called after each view's rectification and after the network and the re-render; ``stage(name,
-    t0)``: the clock of :class:`.outputs.Stages`."""
+    t0)``: the clock of :class:`.outputs.Stages`; ``resolved``: what :func:`resolve_views` made of
+    ``cfg.views`` already (None: resolved here)."""
     from ..model.predictor import ViewsPredictor
 
     log = log or (lambda msg: None)
@@ -1083,7 +1088,7 @@ def estimate_views(
     stage = stage or (lambda name, t0: None)
     t0 = time.perf_counter()
     path = model_path(cfg.checkpoint) if predictor is None else None
-    shots, warnings = resolve_views(cfg.views)
+    shots, warnings = resolve_views(cfg.views) if resolved is None else resolved
     lit = [s.flash is not None for s in shots]  # the network reads the flash views; the fit all
     camera_views = read_views(shots, cfg.saturation_level, warnings)
     if cfg.flash_intensity is not None:  # finite and > 0: the frozen config checked it
@@ -1123,15 +1128,14 @@ def estimate_views(
     to_reference = [
         None if not on else DEFAULT_FLASH_INTENSITY / known[i] if known else 1.0 for i, on in enumerate(lit)
     ]
-    flash_names = [n for n, on in zip(names, lit) if on]
-    stack = np.stack([views.images[n] * np.float32(f) for n, f in zip(names, to_reference) if f is not None])
-    wts = np.stack([views.weights[n] for n in flash_names])
+    seen = [(s, f) for s, f in zip(shots, to_reference) if f is not None]  # what the network reads
+    stack = np.stack([views.images[s.name] * np.float32(f) for s, f in seen])
+    wts = np.stack([views.weights[s.name] for s, _ in seen])
     if work != grid:
         stack = np.stack([resize_area(v, (grid, grid)) for v in stack])
         wts = np.stack([resize_area(w[..., None], (grid, grid))[..., 0] >= 1 - 1e-6 for w in wts])
-    pred = predictor.predict_views(
-        stack.astype(np.float32), wts.astype(np.float32), [s.camera for s in shots if s.flash is not None]
-    )
+    cameras = [s.camera for s, _ in seen]
+    pred = predictor.predict_views(stack.astype(np.float32), wts.astype(np.float32), cameras)
     maps = pred.maps if work == grid else resample_svbrdf(pred.maps, work)
     if maps.shape != (work, work):
         raise RuntimeError(f"the network returned {maps.shape} maps for a {work}x{work} grid")
@@ -1201,7 +1205,8 @@ def run_multiview(
     out, timings = stage.out, stage.timings
     path = model_path(cfg.checkpoint) if predictor is None else None
 
-    steps = len(resolve_views(cfg.views)[0]) + 4  # each view's rectification, network, re-render, files
+    resolved = resolve_views(cfg.views)
+    steps = len(resolved[0]) + 4  # each view's rectification, network, re-render, files
     progress = None  # opened at the first step: the inputs and the model are checked before
 
     def tick(what: str) -> None:
@@ -1214,7 +1219,7 @@ def run_multiview(
         progress.update(1)
 
     try:
-        est = estimate_views(cfg, predictor, log=log, tick=tick, stage=stage)
+        est = estimate_views(cfg, predictor, log=log, tick=tick, stage=stage, resolved=resolved)
         shots, views, work, names = est.shots, est.views, est.work, est.names
         known, warnings = est.known, est.warnings
         photos = [views.images[n] for n in names]
