@@ -26,6 +26,11 @@ IRRADIANCE_NODES = 64  # Gauss–Legendre nodes per piece of the clamped-cosine 
 
 FORMAT = "ebr-sg/1"
 
+#: :meth:`SGEnvironment.azimuthal`: the polar steps of its hemisphere grid (twice as many azimuths)
+#: and the sharpnesses its zenith lobe is chosen from.
+AZIMUTHAL_POLAR_STEPS = 64
+AZIMUTHAL_SHARPNESS = np.geomspace(0.05, 2000.0, 241)
+
 
 @dataclass(frozen=True)
 class SGEnvironment:
@@ -74,6 +79,30 @@ class SGEnvironment:
         c, s = math.cos(angle), math.sin(angle)
         rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
         return SGEnvironment(self.axis @ rot.T, self.sharpness, self.amplitude)
+
+    def azimuthal(self) -> SGEnvironment:
+        """The environment averaged over azimuth as one lobe at the zenith: what is left of it when
+        the direction it comes from around the vertical is unknown (the expected radiance over a
+        uniformly random turn about z). The lobe's sharpness is the least-squares fit of its profile
+        to the averaged radiance over the upper hemisphere (weighted by ``sin θ cos θ``, the
+        share each polar angle has in a horizontal plane's irradiance; :data:`AZIMUTHAL_SHARPNESS`
+        grid), its amplitude per channel the one that keeps the irradiance of a z-up plane exactly
+        (:meth:`irradiance`). An empty environment stays empty."""
+        if self.num_lobes == 0:
+            return SGEnvironment.empty()
+        theta = (np.arange(AZIMUTHAL_POLAR_STEPS) + 0.5) * (math.pi / 2 / AZIMUTHAL_POLAR_STEPS)
+        phi = (np.arange(2 * AZIMUTHAL_POLAR_STEPS) + 0.5) * (math.pi / AZIMUTHAL_POLAR_STEPS)
+        t, p = np.meshgrid(theta, phi, indexing="ij")
+        dirs = np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
+        profile = self.eval(dirs).mean(axis=1)  # (T, 3): the radiance averaged over azimuth
+        weight = np.sin(theta) * np.cos(theta)
+        shapes = np.exp(AZIMUTHAL_SHARPNESS[:, None] * (np.cos(theta)[None] - 1.0))  # (L, T)
+        amp = np.einsum("lt,tc->lc", shapes * weight, profile) / (shapes**2 @ weight)[:, None]
+        misfit = np.einsum("t,ltc->l", weight, (profile[None] - shapes[..., None] * amp[:, None]) ** 2)
+        lam = float(AZIMUTHAL_SHARPNESS[int(np.argmin(misfit))])
+        zenith = SGEnvironment(np.array([[0.0, 0.0, 1.0]]), np.array([lam]), np.ones((1, 3)))
+        amplitude = self.irradiance() / zenith.lobe_irradiance()[0]
+        return SGEnvironment(zenith.axis, zenith.sharpness, np.maximum(amplitude, 0.0)[None])
 
     def concat(self, other: SGEnvironment) -> SGEnvironment:
         return SGEnvironment(

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from ebr_mitsuba.bench import insert as bench
@@ -35,3 +36,21 @@ def test_quick_page_measures_composite_render_and_floor(tmp_path, monkeypatch):
     assert mv["ratio"] == pytest.approx(mv["composite"] / mv["floor"]) and mv["dropped_ratio"] > 0
     assert "## Multi-view captures" in page and f"**{mv['ratio']:.1f}×**" in page
     assert f"{mv['dropped_ratio']:.1f}× |" in page and "the 9 flash views only" in page
+    # the network's own lobes and the true environment, against the same truth and floor
+    assert set(mv["others_ratio"]) == set(bench.MULTIVIEW_OTHERS)
+    for name, ratio in mv["others_ratio"].items():
+        assert ratio > 0 and f"{ratio:.1f}× |" in page, name
+    assert mv["others_ratio"]["network lobes"] != mv["ratio"]  # env.json averaged over azimuth
+    assert "of its mean direction" in page  # the network's lobes across the captures
+
+
+def test_lobe_spread_is_the_largest_angle_from_the_mean_axis():
+    from ebr_mitsuba.sgenv import SGEnvironment
+
+    def env(*elevations):
+        axes = [[np.cos(np.radians(e)), 0.0, np.sin(np.radians(e))] for e in elevations]
+        return SGEnvironment(np.array(axes), np.ones(len(axes)), np.ones((len(axes), 3)))
+
+    assert bench.lobe_spread([]) == []
+    assert bench.lobe_spread([env(30, 60), env(30, 60)]) == pytest.approx([0, 0], abs=0.05)  # float32 axes
+    assert bench.lobe_spread([env(30, 60), env(40, 60)]) == pytest.approx([5, 0], abs=0.05)

@@ -95,6 +95,32 @@ def test_estimate_views_writes_every_output(model, capture_mv, tmp_path, capsys)
     assert "progress" not in err or "estimate --views" in err
 
 
+def test_env_json_is_the_centre_pixels_lighting_averaged_over_azimuth(model, capture_mv, tmp_path, capsys):
+    """Default: one lobe at the zenith lighting the plane as the centre pixel's lobes do (docs/mair.md,
+    "The environment for insertion"); --no-azimuthal-env: those lobes as they are (lobes.exr)."""
+    from ebr_mitsuba.sgenv import SGEnvironment
+
+    envs = {}
+    for flag in ("--azimuthal-env", "--no-azimuthal-env"):
+        out = tmp_path / flag
+        code, summary, err = estimate_json(
+            capsys, "--views", capture_mv, "--checkpoint", model, "--out", out, flag
+        )
+        assert code == 0, err
+        envs[flag] = SGEnvironment.load(out / "env.json")
+        meta = json.loads((out / "lighting" / "lighting.json").read_text())
+        assert meta["env_json"] == summary["lighting"]["env_json"]
+        lobes = read_exr(out / "lighting" / "lobes.exr", meta["channels"])[16, 16].reshape(3, 8)
+    assert summary["lighting"]["env_json"] == multiview.ENV_CENTRE
+    centre = envs["--no-azimuthal-env"]
+    np.testing.assert_allclose(centre.axis, lobes[:, :3], atol=1e-6)
+    np.testing.assert_allclose(centre.sharpness, lobes[:, 3], rtol=1e-6)
+    np.testing.assert_allclose(centre.amplitude, lobes[:, 5:], rtol=1e-5)
+    averaged = envs["--azimuthal-env"]
+    assert averaged.num_lobes == 1 and np.allclose(averaged.axis, [[0, 0, 1]])
+    np.testing.assert_allclose(averaged.irradiance(), centre.irradiance(), rtol=1e-4)
+
+
 def _as_generated_sample(capture: Path, folder: Path, exposure: float) -> Path:
     """``capture`` laid out as a generated multi-view sample (``sample.json``, ``ebr generate``):
     the views under ``photos/`` scaled by the camera ``exposure``, the flash intensity stated at

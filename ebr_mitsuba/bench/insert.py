@@ -68,7 +68,8 @@ def measure(plate, truth, material: str, res: int, spp: int, dropped=None, other
     (estimate | truth | difference, at the truth's exposure); with ``dropped`` (the plate of the
     same estimate with its horizon lobes dropped), its insertion's ratio to the same floor; with
     ``others`` (name → plate), each one's insertion's relative RMSE against the same truth render
-    (``row["others"]``), to tell which part of the plate the error comes from."""
+    (``row["others"]``) and its ratio to the same floor (``row["others_ratio"]``), to tell which
+    part of the plate the error comes from."""
     from ..insert import InsertConfig, exposure, insertion_images, object_dict, side_by_side, truth_again
     from ..metrics import rel_rmse, rmse
 
@@ -91,10 +92,9 @@ def measure(plate, truth, material: str, res: int, spp: int, dropped=None, other
         other = insertion_images(dropped, cfg, res, shape)[0]["insert"]
         row["dropped_ratio"] = rmse(other, images["truth"]) / floor
     if others:
-        row["others"] = {
-            name: rel_rmse(insertion_images(p, cfg, res, shape)[0]["insert"], images["truth"])
-            for name, p in others.items()
-        }
+        inserted = {name: insertion_images(p, cfg, res, shape)[0]["insert"] for name, p in others.items()}
+        row["others"] = {name: rel_rmse(image, images["truth"]) for name, image in inserted.items()}
+        row["others_ratio"] = {name: rmse(image, images["truth"]) / floor for name, image in inserted.items()}
     picture = side_by_side(images["insert"], images["truth"], exposure(images["truth"]))
     return {**row, "picture": np.clip(picture, 0, None)}
 
@@ -129,9 +129,17 @@ def _capture_cases(tmp: Path, n: int, res: int, capture_spp: int, predictor) -> 
     return cases
 
 
+#: The multi-view cases' other plates (name → what it is), each against the same truth and floor.
+MULTIVIEW_OTHERS = {
+    "network lobes": "the network's lobes of the centre pixel as they are (`--no-azimuthal-env`)",
+    "true environment": "the estimated maps and photo under the true environment",
+}
+
+
 def _multiview_cases(tmp: Path, n: int, res: int, capture_spp: int) -> list[tuple]:
-    """(label, short label, estimate plate, truth plate, estimate plate of the 9 flash views only)
-    of the first ``n`` :data:`CAPTURES` captured multi-view; [] when no MAIR model is shipped."""
+    """(label, short label, estimate plate, truth plate, estimate plate of the 9 flash views only,
+    the plates of :data:`MULTIVIEW_OTHERS`) of the first ``n`` :data:`CAPTURES` captured
+    multi-view; [] when no MAIR model is shipped."""
     from ..capture import capture
     from ..estimate.multiview import MultiViewConfig, load_mair, run_multiview, shipped_model_path
     from ..insert import load_capture, load_estimate
@@ -153,11 +161,17 @@ def _multiview_cases(tmp: Path, n: int, res: int, capture_spp: int) -> list[tupl
         meta["shots"] = [shot for shot in meta["shots"] if shot["flash"] is not None]
         (flash_only / "capture.json").write_text(json.dumps(meta))
         plates = []
-        for views in (cap, flash_only):
-            out = tmp / f"mv_est{k}_{views.name}"
-            run_multiview(MultiViewConfig(views=str(views), out=str(out)), predictor=predictor)
+        for views, azimuthal in ((cap, True), (flash_only, True), (cap, False)):
+            out = tmp / f"mv_est{k}_{views.name}_{azimuthal}"
+            cfg = MultiViewConfig(views=str(views), out=str(out), azimuthal_env=azimuthal)
+            run_multiview(cfg, predictor=predictor)
             plates.append(load_estimate(out))
-        cases.append((f"`{material}` under `{env}`", material, plates[0], load_capture(cap), plates[1]))
+        truth = load_capture(cap)
+        others = {
+            "network lobes": plates[2],
+            "true environment": replace(plates[0], emitter=truth.emitter, env=truth.env),
+        }
+        cases.append((f"`{material}` under `{env}`", material, plates[0], truth, plates[1], others))
     return cases
 
 
@@ -223,16 +237,38 @@ def _plot(rows: list[dict], path: Path) -> None:
 
 
 def _table_row(r: dict) -> str:
-    """A case's row of either table: RMSEs, floor, the ratios and the last column's alternative."""
+    """A case's row of either table: RMSEs, floor, the ratios, the alternative's and the other
+    plates' (:data:`MULTIVIEW_OTHERS`, where measured)."""
+    others = "".join(
+        f" {r['others_ratio'][name]:.1f}× |" for name in MULTIVIEW_OTHERS if name in r.get("others_ratio", {})
+    )
     return (
         f"| {r['case']} | {r['material']} | {r['composite']:.5f} | {r['render']:.5f} | "
         f"{r['floor']:.5f} | **{r['ratio']:.1f}×** | {r['render_ratio']:.1f}× | "
-        f"{r['dropped_ratio']:.1f}× |"
+        f"{r['dropped_ratio']:.1f}× |" + others
     )
 
 
+def lobe_spread(envs: list) -> list[float]:
+    """Per lobe index, the largest angle (degrees) between a capture's lobe axis and their mean
+    direction over ``envs`` (SG environments of one lobe count): how much the lobes move with the
+    capture."""
+    if not envs:
+        return []
+    axes = np.stack([np.asarray(e.axis, np.float64) for e in envs])  # (captures, lobes, 3)
+    mean = axes.mean(axis=0)
+    mean /= np.linalg.norm(mean, axis=-1, keepdims=True)
+    cos = np.clip(np.einsum("clk,lk->cl", axes, mean), -1.0, 1.0)
+    return [float(x) for x in np.degrees(np.arccos(cos)).max(axis=0)]
+
+
 def _page(
-    rows: list[dict], pictures: list[tuple[str, str]], settings: dict, seconds: float, quick: bool
+    rows: list[dict],
+    pictures: list[tuple[str, str]],
+    settings: dict,
+    seconds: float,
+    quick: bool,
+    lobes: list | None = None,
 ) -> str:
     lines = [
         "# Object insertion against the truth",
@@ -273,16 +309,19 @@ def _page(
             "",
             f"The same materials and environments as `ebr capture --setup multi-view --res {settings['res']} "
             f"--spp {settings['capture_spp']}` (the 9 flash views and the centre camera's no-flash view), "
-            "estimated by `ebr estimate --views` with the shipped MAIR model (its defaults), the sphere "
-            "composited into the no-flash view. Last column: the same capture with its no-flash view "
-            "left out, the 9 flash views only as the multi-view data sets hold them: the lighting's level "
-            "and colour read off how each pixel changes from flash to flash alone, and no photo to "
-            "composite into (rendered whole); same truth render and floor "
-            "([mair.md](../mair.md#estimating)).",
+            "estimated by `ebr estimate --views` with the shipped MAIR model (its defaults: env.json the "
+            "centre pixel's lighting averaged over azimuth), the sphere composited into the no-flash "
+            "view. Then, each against the same truth render and floor: the same capture with its "
+            "no-flash view left out, the 9 flash views only as the multi-view data sets hold them (the "
+            "lighting's level and colour read off how each pixel changes from flash to flash alone, and "
+            "no photo to composite into: rendered whole); "
+            + "; ".join(MULTIVIEW_OTHERS.values())
+            + " (composited) ([mair.md](../mair.md#estimating)).",
             "",
             "| case | sphere | composite RMSE | rendered-whole RMSE | noise floor | ratio (composite) "
-            "| ratio (rendered whole) | ratio, the 9 flash views only |",
-            "|---|---|---:|---:|---:|---:|---:|---:|",
+            "| ratio (rendered whole) | ratio, the 9 flash views only | ratio, the network's lobes "
+            "| ratio, estimated maps under the true environment |",
+            "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|",
         ]
         for r in mv:
             lines.append(_table_row(r))
@@ -298,6 +337,25 @@ def _page(
                 + ", ".join(f"{r['dropped_ratio']:.1f}×" for r in sel)
                 + ")."
             )
+            by = {name: [r["others_ratio"][name] for r in sel] for name in MULTIVIEW_OTHERS}
+            lines[-1] += (
+                f" Geometric mean ratio {_geomean([r['ratio'] for r in sel]):.2f}× as written against "
+                f"{_geomean(by['network lobes']):.2f}× with the network's lobes (lower averaged in "
+                f"{sum(r['ratio'] < x for r, x in zip(sel, by['network lobes']))} of {len(sel)}); under the "
+                f"true environment {_geomean(by['true environment']):.2f}× (within {ACCEPT_RATIO:g}× in "
+                f"{sum(x <= ACCEPT_RATIO for x in by['true environment'])} of {len(sel)})."
+            )
+        spread = lobe_spread(lobes or [])
+        if spread:
+            lines += [
+                "",
+                f"- The network's lobes at the centre pixel across these {len(lobes)} captures (each under "
+                "another sky): each lobe's axis within "
+                + " / ".join(f"{x:.1f}°" for x in spread)
+                + " of its mean direction. What the lighting net predicts is where the light "
+                "comes from for every capture alike, hence env.json's average over azimuth "
+                "([mair.md](../mair.md#estimating)).",
+            ]
     lines += ["", "![insertion error over the noise floor per case](insert_ratios.png)", ""]
     for group in ("synthetic", "test split"):
         sel = [r for r in rows if r["group"] == group]
@@ -341,6 +399,7 @@ def run(out_dir: Path, quick: bool = False) -> Path:
     from ..fsutil import atomic_write_text
     from ..imageio import write_png
     from ..model.predict import load_predictor
+    from ..sgenv import SGEnvironment
     from ..variant import ensure_variant
 
     ensure_variant()
@@ -365,25 +424,30 @@ def run(out_dir: Path, quick: bool = False) -> Path:
     with tempfile.TemporaryDirectory(prefix="ebr-bench-insert-") as tmp:
         tmp = Path(tmp)
         cases = [
-            ("synthetic", *case, s["materials"])
+            ("synthetic", *case, s["materials"], None)
             for case in _capture_cases(tmp, s["captures"], s["res"], s["capture_spp"], predictor)
         ]
         cases += [
-            (MULTIVIEW, f"{label} (multi-view)", f"multi-view {short}", *rest, s["materials"])
-            for label, short, *rest in _multiview_cases(tmp, s["captures"], s["res"], s["capture_spp"])
+            (MULTIVIEW, f"{label} (multi-view)", f"multi-view {short}", *rest, s["materials"], others)
+            for label, short, *rest, others in _multiview_cases(
+                tmp, s["captures"], s["res"], s["capture_spp"]
+            )
         ]
         if split:
             cases += [
-                ("test split", *case, ("diffuse",))
+                ("test split", *case, ("diffuse",), None)
                 for case in _split_cases(tmp, Path(split), s["test"], predictor)
             ]
         else:
             _log("EBR_SPLIT_DATA not set: synthetic captures only")
         pictured = set()  # every synthetic insertion and the first of the test split get a picture
-        for group, label, short, plate, truth, dropped, materials in cases:
+        lobes = [  # the network's centre-pixel lobes of each multi-view capture
+            SGEnvironment.load(others["network lobes"].env["file"]) for *_, others in cases if others
+        ]
+        for group, label, short, plate, truth, dropped, materials, others in cases:
             for material in materials:
                 _log(f"insertion ({material}) into {label}")
-                r = measure(plate, truth, material, s["res"], s["spp"], dropped)
+                r = measure(plate, truth, material, s["res"], s["spp"], dropped, others)
                 picture = r.pop("picture")
                 rows.append({"group": group, "case": label, "case_short": short, "material": material, **r})
                 if group != "test split" or group not in pictured:
@@ -392,7 +456,7 @@ def run(out_dir: Path, quick: bool = False) -> Path:
                     write_png(out_dir / name, picture, clip="hue")
                     pictures.append((f"{label}, {material} sphere", name))
     _plot(rows, out_dir / "insert_ratios.png")
-    page = _page(rows, pictures, s, time.perf_counter() - t0, quick)
+    page = _page(rows, pictures, s, time.perf_counter() - t0, quick, lobes)
     path = out_dir / PAGE
     atomic_write_text(path, page)
     atomic_write_text(out_dir / "insert.json", json.dumps({"settings": dict(s), "rows": rows}, indent=1))

@@ -25,8 +25,8 @@ Figures, all on the same samples:
   environment), beside the same error of a constant radiance (a lighting estimate that knows
   nothing);
 * **insertion**: ``ebr insert``'s default object (a grey diffuse sphere on the sample) rendered by
-  Mitsuba into the first run's estimate with the view fit (its maps, the centre pixel's lobes in
-  photo units, as ``ebr estimate --views`` writes them by default) and
+  Mitsuba into the first run's estimate with the view fit (its maps, the centre pixel's lighting
+  in photo units averaged over azimuth, as ``ebr estimate --views`` writes env.json by default) and
   into the truth (the true maps, the true environment as rendered: the rotated, scaled HDR map, at
   the sample's exposure), and the truth again with another seed: the insertion's relative RMSE
   against the truth's own noise floor, on the first :data:`INSERT_SAMPLES` test samples.
@@ -188,6 +188,7 @@ def insertions(estimates: list, truths: list, samples: list[Path], res: int, spp
     environment, the true maps under the estimated lighting, the true maps under the SG lobes
     fitted to the true environment: what MAIR's lighting representation allows at best) and the
     pictures; skipped for dark samples."""
+    from ..estimate.multiview import insertion_environment
     from ..insert import Plate
     from ..scene import sg_emitter_dict
     from .insert import measure
@@ -199,7 +200,7 @@ def insertions(estimates: list, truths: list, samples: list[Path], res: int, spp
             continue
         emitter, described = made
         fov = est.shots[len(est.shots) // 2].fov
-        env = est.lighting.pixel_environment()
+        env = insertion_environment(est.lighting)  # what ebr estimate --views writes to env.json
         lighting = partial(sg_emitter_dict, env)
         plate = Plate(sample, "estimate", est.maps, fov, lighting)
         swaps = {

@@ -27,15 +27,17 @@ options below only the common ones apply (--checkpoint, --flash-intensity as eac
 intensity, --saturation-level, --max-size, --json); the others are refused.
 
 Multi-view (--views): the directory of `ebr capture --setup multi-view` (the 3x3 grid of cameras
-each with its flash: view{a}{b}_flash for row a, column b, and its capture.json with every view's
-file, camera, field of view and flash; docs/mair.md, "Estimating"), estimated by a MAIR model
-(`ebr train` with kind = "mair"; none is shipped: --checkpoint is required, train one with
-`ebr train configs/mair_small.toml`). Each view is rectified onto the sample grid; DIR receives
-maps/, lighting/ (the per-pixel SG lobes as EXR, irradiance and hemisphere pictures), env.json
-(the centre pixel's lobes) with its pictures, inputs/ (rectified), weights/ (in frame),
-rerender/ and residual/ per view, novel/, estimate.json and report.html. Exit 2 for a missing
-view or capture.json, another count than 9, views of different sizes, a checkpoint of another
-kind, --views with --flash or --lights. Of the options below only the common ones apply.
+each with its flash: view{a}{b}_flash for row a, column b; the centre camera's noflash view; its
+capture.json with every view's file, camera, field of view and flash; docs/mair.md,
+"Estimating"), estimated by a MAIR model (the shipped ebr_mitsuba/models/mair_small.pt unless
+--checkpoint names another, `ebr train` with kind = "mair"). Each view is rectified onto the sample
+grid; DIR receives maps/, lighting/ (the per-pixel SG lobes as EXR, irradiance and hemisphere
+pictures), env.json (the environment for insertion: the centre pixel's lighting averaged over
+azimuth, one zenith lobe; --no-azimuthal-env: its lobes as predicted) with its pictures, inputs/
+(rectified), weights/ (in frame), rerender/ and residual/ per view, novel/, estimate.json and
+report.html. Exit 2 for a missing view or capture.json, another count of flash views than 9,
+views of different sizes, a checkpoint of another kind, --views with --flash or --lights. Of the
+options below only the common ones apply.
 
 The options, their defaults (in brackets) and ranges are generated from the fields of
 EstimateConfig (ebr_mitsuba.estimate.pipeline), ShadingNormalsConfig

@@ -345,15 +345,16 @@ def render_report(out: Path, summary: dict) -> str:
     if summary["capture"] == "flash-only":
         parts.append("<p>Flash-only capture: no environment estimated.</p>")
     elif "views" in inp:
+        env_json = summary.get("lighting", {}).get("env_json", "the centre pixel's lobes")
         parts.append(
             f"<p>{summary['lobes']} spherical Gaussians per pixel (lighting/lobes.exr, "
             "lighting/lighting.json): the incident lighting of 4 × 4 pixels (each hemisphere seen from "
             "above, +x right, +y up, laid out as in the image), the irradiance they give the plane, and "
-            "the centre pixel's lobes (env.json).</p>"
+            f"the environment for insertion (env.json: {html.escape(env_json)}).</p>"
             + _img(out, "lighting/hemispheres.png", "per-pixel lighting, 4 × 4 pixels", wide=True)
             + _img(out, "lighting/irradiance.png", "irradiance from the SGs")
-            + _img(out, "env_sphere.png", "centre pixel: upper hemisphere seen from above")
-            + _img(out, "env_latlong.png", "centre pixel: lat-long, z up", wide=True)
+            + _img(out, "env_sphere.png", "env.json: upper hemisphere seen from above")
+            + _img(out, "env_latlong.png", "env.json: lat-long, z up", wide=True)
         )
     elif "lights" in inp:
         parts.append(
