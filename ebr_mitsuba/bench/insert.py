@@ -331,10 +331,10 @@ def _page(
             lines.append(
                 f"- **multi-view, {material} sphere**: within {ACCEPT_RATIO:g}× of the noise floor in "
                 f"{sum(r['ratio'] <= ACCEPT_RATIO for r in sel)} of {len(sel)} (ratios "
-                + ", ".join(f"{r['ratio']:.1f}×" for r in sel)
+                + ", ".join(f"{r['ratio']:.2f}×" for r in sel)
                 + "); the 9 flash views only: "
                 f"{sum(r['dropped_ratio'] <= ACCEPT_RATIO for r in sel)} of {len(sel)} (ratios "
-                + ", ".join(f"{r['dropped_ratio']:.1f}×" for r in sel)
+                + ", ".join(f"{r['dropped_ratio']:.2f}×" for r in sel)
                 + ")."
             )
             by = {name: [r["others_ratio"][name] for r in sel] for name in MULTIVIEW_OTHERS}
@@ -346,7 +346,7 @@ def _page(
                 f"{sum(x <= ACCEPT_RATIO for x in by['true environment'])} of {len(sel)})."
             )
         spread = lobe_spread(lobes or [])
-        if spread:
+        if len(lobes or []) >= 2:  # a spread needs two captures
             lines += [
                 "",
                 f"- The network's lobes at the centre pixel across these {len(lobes)} captures (each under "
