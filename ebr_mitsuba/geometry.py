@@ -128,7 +128,8 @@ def capture_shots(setup: str, intensity: float = DEFAULT_FLASH_INTENSITY) -> lis
     multi-view networks read the nine flash views only; the no-flash view gives the environment's
     level and colour to the lighting's scale fit of ``ebr estimate --views``
     (``ebr_mitsuba.estimate.multiview``, "Exposure and units"). Generated data sets keep
-    :func:`setup_shots`."""
+    :func:`setup_shots` unless their config sets ``[capture] noflash_view``
+    (:func:`ebr_mitsuba.data.renderers.shots_of`)."""
     shots = setup_shots(setup, intensity)
     if setup == "multi-view":
         shots.append(near_shot(False, intensity=intensity))

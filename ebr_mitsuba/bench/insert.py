@@ -23,7 +23,7 @@ Multi-view cases (issue 13's acceptance is stated for the multi-view estimate): 
 :data:`CAPTURES` as ``ebr capture --setup multi-view`` (the 9 flash views and the centre camera's
 no-flash view), estimated by ``ebr estimate --views`` with the shipped MAIR model, composited into
 the no-flash view; beside it the same capture without its no-flash view (the 9 flash views only,
-as the multi-view data sets hold them: the lighting's scale read off the flash views alone, no
+as the multi-view data sets hold them by default: the lighting's scale read off the flash views alone, no
 photo to composite into, so rendered whole), against the same truth render and floor.
 """
 
@@ -312,8 +312,9 @@ def _page(
             "estimated by `ebr estimate --views` with the shipped MAIR model (its defaults: env.json the "
             "centre pixel's lighting averaged over azimuth), the sphere composited into the no-flash "
             "view. Then, each against the same truth render and floor: the same capture with its "
-            "no-flash view left out, the 9 flash views only as the multi-view data sets hold them (the "
-            "lighting's level and colour read off how each pixel changes from flash to flash alone, and "
+            "no-flash view left out, the 9 flash views only as a multi-view data set holds them by "
+            "default (the lighting's level and colour read off how each pixel changes from flash to "
+            "flash alone, and "
             "no photo to composite into: rendered whole); "
             + "; ".join(MULTIVIEW_OTHERS.values())
             + " (composited) ([mair.md](../mair.md#estimating)).",

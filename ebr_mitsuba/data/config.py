@@ -136,6 +136,12 @@ class CaptureSection:
         "near", "capture setup (one per data set, so every sample has the same tensors)", choices=SETUPS
     )
     flash_intensity: float = option(DEFAULT_FLASH_INTENSITY, "point-light intensity, W/sr", above=0)
+    noflash_view: bool = option(
+        False,
+        "multi-view only: also the centre camera without its flash (the noflash view of ebr capture "
+        "--setup multi-view), for ebr estimate --views' lighting scale and ebr insert's compositing; "
+        "the networks read the nine flash views",
+    )
 
 
 @config
@@ -320,6 +326,8 @@ class GenerateConfig:
     def to_json(self) -> dict:
         """The normalised config (absolute paths, every default filled in), JSON-ready."""
         out = {name: _jsonable(dataclasses.asdict(getattr(self, name))) for name in SECTIONS}
+        if not self.capture.noflash_view:  # off: the fingerprint of the data sets made before it
+            del out["capture"]["noflash_view"]
         out["materials"] = [_jsonable(dataclasses.asdict(m)) for m in self.materials]
         out["environments"] = [_jsonable(dataclasses.asdict(e)) for e in self.environments]
         return out
@@ -457,6 +465,13 @@ def parse_config(doc: dict, source: str = "<memory>", base_dir: str | Path = "."
             hint = ' (type = "none" for a dark environment)' if name == "environments" else ""
             raise _err(source, name, f"is missing; add at least one [[{name}]] table{hint}")
         values[name] = _parse_sources(doc[name], name, ARRAYS[name], source, base)
+    if values["capture"].noflash_view and values["capture"].setup != "multi-view":
+        raise _err(
+            source,
+            "capture.noflash_view",
+            f"applies to the multi-view setup only (the {values['capture'].setup} setup has its own "
+            "shots); remove it",
+        )
     cam = values["camera"]
     if cam.quantize and not cam.clip:
         raise _err(source, "camera.quantize", "needs camera.clip = true (8-bit codes hold [0, 1])")

@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..exemplar.images import exemplar_material
-from ..geometry import Shot, near_shot, setup_shots
+from ..geometry import Shot, capture_shots, near_shot, setup_shots
 from ..svbrdf import SVBRDF
 from .config import GenerateConfig
 from .sample import EnvDraw, SampleDraw, equirect_map
@@ -57,8 +57,10 @@ class CleanImages:
 
 
 def shots_of(config: GenerateConfig) -> list[Shot]:
-    """The shots of the config's setup."""
-    return setup_shots(config.capture.setup, intensity=config.capture.flash_intensity)
+    """The shots of the config's setup (with ``capture.noflash_view``, those of ``ebr capture``:
+    the multi-view setup's no-flash view last)."""
+    shots = capture_shots if config.capture.noflash_view else setup_shots
+    return shots(config.capture.setup, intensity=config.capture.flash_intensity)
 
 
 def has_flash_only(shot: Shot) -> bool:

@@ -251,7 +251,8 @@ def render_count(config: GenerateConfig) -> int:
     from ..geometry import setup_shots
 
     ex = config.exemplars
-    return 2 * len(setup_shots(config.capture.setup)) + len(ex.env_roughness) + len(ex.point_roughness)
+    shots = len(setup_shots(config.capture.setup)) + bool(config.capture.noflash_view)
+    return 2 * shots + len(ex.env_roughness) + len(ex.point_roughness)
 
 
 def draw_sample(plan: Plan, index: int) -> SampleDraw:
