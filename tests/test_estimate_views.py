@@ -581,3 +581,21 @@ def test_model_and_flag_errors(model, capture_mv, tmp_path, capsys, monkeypatch)
     code, _, err = estimate_json(capsys, "--flash", flash, "--checkpoint", model, "--out", out)
     assert code == 2 and len(nonblank_lines(err)) == 1 and "a 'mair' checkpoint" in err
     assert not out.exists()
+
+
+def test_the_specular_fit_reads_the_flash_views_only(model, capture_mv, tmp_path, monkeypatch):
+    """The no-flash view shows the environment's reflection, whose shape the lighting net does not
+    know: the F0 / roughness fit leaves it out (module docstring, "The multi-view specular fit"),
+    while the lighting's scale fit still reads it."""
+    seen = {}
+    original = multiview.fit_specular
+
+    def spy(maps, lighting, shots, photos, masks, known, *args, **kwargs):
+        seen["names"], seen["known"] = [s.name for s in shots], list(known)
+        return original(maps, lighting, shots, photos, masks, known, *args, **kwargs)
+
+    monkeypatch.setattr(multiview, "fit_specular", spy)
+    cfg = multiview.MultiViewConfig(views=str(capture_mv), out=str(tmp_path / "e"), checkpoint=str(model))
+    est = multiview.estimate_views(cfg, None)
+    assert seen["names"] == FLASH_VIEWS and all(k > 0 for k in seen["known"])
+    assert "noflash" in est.names  # the scale fit and the re-renders keep it
