@@ -93,9 +93,10 @@ left the network's lighting colour in the albedo: on training samples of real se
 diffuse came out 0.68 / 0.29 / 0.06). Needs the flash intensities (``capture.json`` or
 ``--flash-intensity``). On 8 training-set samples of ``configs/data_real_multiview_train.toml`` (not
 the test split) it took the mean per-map RMSE from 0.130 to 0.082 (diffuse 0.187 → 0.075, specular
-0.087 → 0.007) with the first shipped model; on the multi-view test split with the current one
-(docs/mair_eval.md) from 0.0624 to 0.0585 (specular 0.032 → 0.008, diffuse 0.082 → 0.071, but
-roughness 0.101 → 0.120: the network's roughness map beats the one fitted value there; on the
+0.087 → 0.007) with the first shipped model; on the multi-view test split (docs/mair_eval.md,
+2026-12-07, with its no-flash view, ablation runs retrained) from 0.0585 to 0.0523 (specular 0.035
+→ 0.008, diffuse 0.065 → 0.046, but roughness 0.099 → 0.120: the network's roughness map beats
+the one fitted value there; on the
 validation set, configs/data_real_multiview_val.toml, keeping the network's roughness with the
 fitted F0 was the worse of the two: roughness 0.086 → 0.106, diffuse 0.060 → 0.070), about 6 s per
 estimate at 256² on two cores. What it cannot do: a roughness map (one value for the sample); a
@@ -104,7 +105,8 @@ The fit reads the flash views only: a view without its flash shows the environme
 whose shape the lighting network does not know (below), and read with it the roughness went wrong.
 On the validation set with its no-flash view (``configs/data_real_multiview_val.toml`` with
 ``[capture] noflash_view = true``, 16 samples) the mean per-map RMSE was 0.0517 with it and 0.0456
-without (roughness 0.108 → 0.086, better in 8 samples and worse in 1; diffuse 0.0493 → 0.0509).
+without (roughness 0.108 → 0.086, better in 8 samples and worse in 1; diffuse 0.0493 → 0.0509);
+on the test split, measured after the choice, 0.0641 → 0.0523 (roughness 0.164 → 0.120).
 
 **The environment for insertion** (``env.json``, what ``ebr insert`` lights the object with;
 :func:`insertion_environment`, default ``--azimuthal-env``). The per-pixel lobes place the
