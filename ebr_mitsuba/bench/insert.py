@@ -35,6 +35,7 @@ import sys
 import tempfile
 import time
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -141,8 +142,15 @@ def _multiview_cases(tmp: Path, n: int, res: int, capture_spp: int) -> list[tupl
     the plates of :data:`MULTIVIEW_OTHERS`) of the first ``n`` :data:`CAPTURES` captured
     multi-view; [] when no MAIR model is shipped."""
     from ..capture import capture
-    from ..estimate.multiview import MultiViewConfig, load_mair, run_multiview, shipped_model_path
+    from ..estimate.multiview import (
+        MultiViewConfig,
+        load_mair,
+        read_centre_lobes,
+        run_multiview,
+        shipped_model_path,
+    )
     from ..insert import load_capture, load_estimate
+    from ..scene import sg_emitter_dict
 
     if not shipped_model_path().is_file():
         _log("no shipped MAIR model: no multi-view cases")
@@ -161,14 +169,15 @@ def _multiview_cases(tmp: Path, n: int, res: int, capture_spp: int) -> list[tupl
         meta["shots"] = [shot for shot in meta["shots"] if shot["flash"] is not None]
         (flash_only / "capture.json").write_text(json.dumps(meta))
         plates = []
-        for views, azimuthal in ((cap, True), (flash_only, True), (cap, False)):
-            out = tmp / f"mv_est{k}_{views.name}_{azimuthal}"
-            cfg = MultiViewConfig(views=str(views), out=str(out), azimuthal_env=azimuthal)
-            run_multiview(cfg, predictor=predictor)
+        for views in (cap, flash_only):
+            out = tmp / f"mv_est{k}_{views.name}"
+            run_multiview(MultiViewConfig(views=str(views), out=str(out)), predictor=predictor)
             plates.append(load_estimate(out))
         truth = load_capture(cap)
+        lobes = read_centre_lobes(tmp / f"mv_est{k}_{cap.name}")  # --no-azimuthal-env's env.json
+        network = {"kind": "sg", "lobes": lobes.num_lobes, "environment": lobes}
         others = {
-            "network lobes": plates[2],
+            "network lobes": replace(plates[0], emitter=partial(sg_emitter_dict, lobes), env=network),
             "true environment": replace(plates[0], emitter=truth.emitter, env=truth.env),
         }
         cases.append((f"`{material}` under `{env}`", material, plates[0], truth, plates[1], others))
@@ -400,7 +409,6 @@ def run(out_dir: Path, quick: bool = False) -> Path:
     from ..fsutil import atomic_write_text
     from ..imageio import write_png
     from ..model.predict import load_predictor
-    from ..sgenv import SGEnvironment
     from ..variant import ensure_variant
 
     ensure_variant()
@@ -443,7 +451,7 @@ def run(out_dir: Path, quick: bool = False) -> Path:
             _log("EBR_SPLIT_DATA not set: synthetic captures only")
         pictured = set()  # every synthetic insertion and the first of the test split get a picture
         lobes = [  # the network's centre-pixel lobes of each multi-view capture
-            SGEnvironment.load(others["network lobes"].env["file"]) for *_, others in cases if others
+            others["network lobes"].env["environment"] for *_, others in cases if others
         ]
         for group, label, short, plate, truth, dropped, materials, others in cases:
             for material in materials:

@@ -1004,6 +1004,18 @@ def insertion_environment(lighting, azimuthal: bool = True) -> SGEnvironment:
     return env.azimuthal() if azimuthal else env
 
 
+def read_centre_lobes(out: Path) -> SGEnvironment:
+    """The centre pixel's lobes as ``out/lighting/`` holds them (what ``--no-azimuthal-env`` writes
+    to env.json), read back from ``lobes.exr`` without estimating again."""
+    from ..imageio import read_exr
+
+    meta = json.loads((out / "lighting" / "lighting.json").read_text())
+    lobes = read_exr(out / "lighting" / "lobes.exr", meta["channels"])
+    h, w = lobes.shape[:2]
+    px = lobes[h // 2, w // 2].reshape(meta["num_sgs"], 8)  # axis, sharpness, visibility, amplitude
+    return SGEnvironment(px[:, :3], np.maximum(px[:, 3], 1e-6), np.maximum(px[:, 5:], 0.0))
+
+
 def write_lighting(
     out: Path, network_lighting, scale: tuple[float, float, float], azimuthal: bool = True
 ) -> tuple[list[str], SGEnvironment]:
