@@ -1039,6 +1039,39 @@ def test_shading_normals_follow_the_relief_and_can_be_switched_off(tmp_path, cap
     assert spread(more_maps) > 1.2 * spread(shaded)
 
 
+def test_roughness_pattern_is_recorded_and_can_be_switched_off(tmp_path, capsys):
+    """A procedural tile capture read as a dielectric: estimate.json records the roughness
+    pattern's reading, and the roughness map follows it (its mean the fitted roughness, a spread
+    when applied); --no-roughness-pattern keeps the fitted constant and records none."""
+    from ebr_mitsuba.capture import capture
+    from ebr_mitsuba.materials import load_material_dir
+
+    cap = tmp_path / "cap"
+    capture("procedural:tiles:1", ENV, "near", cap, spp=8, res=96, progress=False)
+    shots = ["--flash", cap / "flash.exr", "--noflash", cap / "noflash.exr"]
+    code, stdout, err = _estimate([*shots, "--out", tmp_path / "on", "--json"], capsys)
+    assert code == 0, err
+    fit = json.loads(stdout)["flash_fit"]
+    assert not fit["metal"] and fit["roughness_from"] == "fit"
+    pattern = fit["roughness_pattern"]
+    rough = load_material_dir(tmp_path / "on" / "maps").roughness
+    if pattern["applied"]:
+        assert pattern["slope"] != 0.0 and float(np.std(rough)) > 0.0
+    else:
+        assert pattern["reason"] and float(np.std(rough)) == 0.0
+    assert abs(float(np.mean(rough)) - fit["roughness"]) < 0.02
+    code, stdout, err = _estimate(
+        [*shots, "--out", tmp_path / "off", "--no-roughness-pattern", "--json"], capsys
+    )
+    assert code == 0, err
+    off = json.loads(stdout)["flash_fit"]
+    assert off["roughness_pattern"] is None and off["roughness_from"] == "fit"
+    constant = load_material_dir(tmp_path / "off" / "maps").roughness
+    assert float(np.ptp(constant)) == 0.0 and float(constant.mean()) == pytest.approx(
+        off["roughness"], abs=1e-4
+    )
+
+
 def test_phone_far_pair_needs_the_far_flash_ratio(tmp_path, capsys, fake_net):
     """A phone's far pair: its one flash from four times farther, so the far flash-only image is
     (far / near)² ≈ 17× darker than ``ebr capture``'s (whose far flash is as bright at the sample).
@@ -1094,6 +1127,18 @@ def test_report_says_how_the_flash_fit_read_the_maps():
         and "roughness 1" in rows["metal or dielectric"]
     )
     assert "pixel-median reading's 0.4" in rows["roughness"]
+    assert "roughness pattern" not in rows
+    patterned = dict(
+        flash_fit_rows(
+            {**fit, "roughness_pattern": {"applied": True, "slope": -0.108, "read": -0.054, "stderr": 0.0025}}
+        )
+    )
+    assert patterned["roughness pattern"].startswith("-0.108 roughness per unit of log-albedo")
+    skipped = {"applied": False, "slope": 0.0, "reason": "roughness 0.875 > 0.7"}
+    assert (
+        "not read (roughness 0.875 > 0.7)"
+        in dict(flash_fit_rows({**fit, "roughness_pattern": skipped}))["roughness pattern"]
+    )
     net = flash_fit_rows({**fit, "roughness_from": "network", "misfit": 0.0071})
     assert "the network's map: the profile misfits (ring residual 0.0071 > 0.003)" in dict(net)["roughness"]
     metal = dict(flash_fit_rows({**fit, "metal": True, "pixel_median": None, "specular": [0.9, 0.6, 0.3]}))

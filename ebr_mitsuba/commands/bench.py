@@ -1,7 +1,7 @@
 """Measure speed against error and write the tables and plots (docs/bench/ in a checkout).
 
   ebr bench [renderer|generate|extract-sg|estimate|sizes|models|fivelight|mair|insert|flash-fit|
-             normals|refine|all]
+             normals|roughness|refine|all]
             [--out DIR] [--quick] [--json]
 
 Each benchmark writes ``OUT/<name>.md`` (a Markdown table with the reference it was measured
@@ -43,6 +43,10 @@ against, and the PNG plots it links) and returns its path:
 * ``normals``: ``ebr estimate``'s shading normals on validation captures, flat, without and with the
   relief read off the flash / no-flash ratio's residual: normal RMSE, mean per-map RMSE, held-out
   re-render, the normals' spread, a picture (writes ``normals.md``; needs ``EBR_NORMALS_DATA`` or
+  ``EBR_VAL_DATA``);
+* ``roughness``: ``ebr estimate``'s roughness pattern on validation captures, the fitted constant
+  against the map that follows the albedo, over a grid of gains: roughness RMSE, mean per-map RMSE,
+  held-out re-render, pictures (writes ``roughness.md``; needs ``EBR_ROUGHNESS_DATA`` or
   ``EBR_VAL_DATA``);
 * ``refine``: test-time refinement judged by the maps and by held-out lights: each refinement
   variant against the same estimates without it, how often it lowers the mean per-map RMSE, the
@@ -91,6 +95,7 @@ BENCHMARKS = (
     "insert",
     "flash-fit",
     "normals",
+    "roughness",
     "refine",
 )
 OUTSIDE_CHECKOUT = Path("ebr-bench")

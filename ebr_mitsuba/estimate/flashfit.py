@@ -572,8 +572,9 @@ class FlashFit:
     relief: dict | None = None  # the two-lobe profile that won (module docstring, "Relief"), or None
     misfit: float | None = None  # the kept profile's ring residual (module docstring, "Misfit")
     pixel_median: dict | None = None  # the pixel-median reading ("The pixel-median reading"), or None
-    roughness_map: np.ndarray | None = None  # (H, W): set by with_network_roughness, else constant
+    roughness_map: np.ndarray | None = None  # (H, W): with_network_roughness / with_roughness_pattern
     decision: dict | None = None  # the metal-or-dielectric decision ("Metal or dielectric")
+    roughness_pattern: dict | None = None  # set by with_roughness_pattern (estimate/roughness_pattern.py)
 
     def maps(self, normal: np.ndarray, source: str = "flash fit"):
         """The fitted maps as an :class:`~ebr_mitsuba.svbrdf.SVBRDF` with ``normal`` (H, W, 3):
@@ -603,6 +604,22 @@ class FlashFit:
         if net.size != h * w:
             raise InputError(f"flash fit: the network's roughness map is {net.shape}; expected ({h}, {w})")
         return replace(self, roughness_map=net.reshape(h, w), roughness=float(net.mean()))
+
+    def with_roughness_pattern(self, pattern) -> FlashFit:
+        """The fit with the roughness map of ``pattern`` (a
+        :class:`~.roughness_pattern.RoughnessPattern`) around the fitted roughness, its texture read
+        off this fit's diffuse map; recorded in ``roughness_pattern`` whether applied or not. A fit
+        whose roughness is the network's map is returned as it is."""
+        if self.roughness_map is not None:
+            return self
+        record = pattern.to_json()
+        if not pattern.applied:
+            return replace(self, roughness_pattern=record)
+        return replace(
+            self,
+            roughness_map=pattern.roughness_map(self.roughness, self.diffuse),
+            roughness_pattern=record,
+        )
 
     def with_network_diffuse(self, network_diffuse: np.ndarray, weight: float) -> FlashFit:
         """The fit with its diffuse map blended with a network's (H, W, 3) diffuse map, scaled per
@@ -646,7 +663,10 @@ class FlashFit:
             "misfit": None if self.misfit is None else float(f"{self.misfit:.3g}"),
             "pixel_median": self.pixel_median,
             "decision": self.decision,
-            "roughness_from": "network" if self.roughness_map is not None else "fit",
+            "roughness_from": (
+                "network" if self.roughness_map is not None and self.roughness_pattern is None else "fit"
+            ),
+            "roughness_pattern": self.roughness_pattern,
         }
 
 

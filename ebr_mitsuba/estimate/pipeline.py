@@ -167,6 +167,12 @@ class EstimateConfig:
         "(estimate/shading_normals.py); --no-shading-normals keeps the network's normals",
         flag="--shading-normals",
     )
+    roughness_pattern: bool = option(
+        True,
+        "the roughness map follows the albedo texture by a slope read off the flash highlight "
+        "(estimate/roughness_pattern.py); --no-roughness-pattern keeps the fitted constant",
+        flag="--roughness-pattern",
+    )
     drop_horizon_lobes: bool = option(
         False,
         "drop the SG lobes within 3° of the horizon, which the photos barely see, keeping the "
@@ -306,6 +312,29 @@ def fit_capture_flash(inputs: Inputs, fov: float, far_ratio: float | None = None
         options=options,
         far=far_pair,
     )
+
+
+def _with_roughness_pattern(flash_fit, work_inputs: Inputs, fov: float, log):
+    """``flash_fit`` with the roughness pattern of :mod:`.roughness_pattern` read off the near pair of
+    ``work_inputs`` (as :func:`fit_capture_flash` fitted it); a fit whose roughness is the
+    network's map is kept as it is."""
+    from .roughness_pattern import read_roughness_pattern
+
+    if flash_fit.roughness_map is not None:
+        return flash_fit
+    pattern = read_roughness_pattern(
+        flash_fit,
+        work_inputs.images["flash"],
+        work_inputs.images["noflash"],
+        intensity=DEFAULT_FLASH_INTENSITY,
+        camera=(0.0, 0.0, near_distance(fov)),
+        saturated=work_inputs.saturated,
+    )
+    if pattern.applied:
+        log(f"roughness pattern: {pattern.slope:+.3f} roughness per unit of log-albedo")
+    else:
+        log(f"roughness pattern not read ({pattern.reason}): the fitted constant")
+    return flash_fit.with_roughness_pattern(pattern)
 
 
 FAR_DIM_LIMIT = 4.0  # a far flash-only image this many times darker than the near one: a phone's pair
@@ -670,6 +699,8 @@ def run_estimate(
             flash_fit = flash_fit.with_network_roughness(np.asarray(maps.roughness))
         weight = fit_options.weight_for(max(flash_img.shape[:2]))
         flash_fit = flash_fit.with_network_diffuse(np.asarray(maps.diffuse), weight)
+        if cfg.roughness_pattern and not flash_fit.metal and not inputs.flash_only:
+            flash_fit = _with_roughness_pattern(flash_fit, work_inputs, inputs.fov, log)
         maps = flash_fit.maps(normal, source)
 
     horizon = None

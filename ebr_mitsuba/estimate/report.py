@@ -187,6 +187,17 @@ def flash_fit_rows(fit: dict) -> list[list]:
             f"{_fmt(pm['roughness'], 3)}"
         )
     rows.append(["roughness", f"{_fmt(fit.get('roughness'), 3)}, from {how}"])
+    pattern = fit.get("roughness_pattern")
+    if pattern and source != "network":
+        if pattern.get("applied"):
+            text = (
+                f"{_fmt(pattern['slope'], 3)} roughness per unit of log-albedo around it (read "
+                f"{_fmt(pattern.get('read'), 3)} ± {_fmt(pattern.get('stderr'), 2)} off the flash "
+                "highlight; --no-roughness-pattern keeps the constant)"
+            )
+        else:
+            text = f"not read ({pattern.get('reason', '')}): the map is the constant"
+        rows.append(["roughness pattern", text])
     rows.append(["specular F0 (RGB)", ", ".join(_fmt(x, 3) for x in fit.get("specular", []))])
     rows.append(["albedo level (RGB)", ", ".join(_fmt(x, 3) for x in fit.get("diffuse_level", []))])
     return rows
