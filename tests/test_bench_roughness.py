@@ -66,10 +66,18 @@ def test_quick_page_on_the_tiny_set_and_refusals(tiny, tmp_path, monkeypatch):
             assert 0 <= row[v]["roughness"] < 1 and row[v]["rerender"] >= 0
         if not row["read"]:
             assert row["pattern"]["roughness"] == row["constant"]["roughness"]
+        assert row["record"] is None or "applied" in row["record"]  # estimate.json's record
     summary = record["summary"]["all"]
     assert set(record["summary"]) == {tiny.name, "all"} and summary["captures"] == bench.QUICK_SAMPLES
     assert [p["gain"] for p in summary["gains"]] == list(bench.GAINS)
     assert summary["gains"][0]["roughness"] == pytest.approx(summary["constant"]["roughness"], abs=1e-9)
     assert "## The gain" in page and (tmp_path / "roughness_gains.png").is_file()
+
+    # a capture whose pattern was read gets its reading in the per-capture table
+    row = dict(
+        record["rows"][0], read=True, record={"applied": True, "slope": 0.1, "read": 0.05, "stderr": 0.01}
+    )
+    result = {"rows": [row], "summary": record["summary"], "pool": record["pool"]}
+    assert "+0.050 ± 0.010 | +0.100" in bench._page(result, [tiny], 1.0, True, [])
 
     assert_needs_data_sets(bench, "EBR_ROUGHNESS_DATA", tmp_path, monkeypatch)

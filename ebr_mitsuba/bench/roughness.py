@@ -124,7 +124,7 @@ def measure(roots: list[Path], limit: int = 0, progress=None) -> dict:
                 "index": i,
                 "material": str(ds.index["samples"][i]["material"]).split("/")[-1],
                 "read": bool(pattern.get("applied")) and fit.get("roughness_from") == "fit",
-                "pattern": pattern or None,
+                "record": pattern or None,  # estimate.json flash_fit.roughness_pattern
                 "fitted": fit.get("roughness"),
                 "oracle": float(np.std(truth.roughness)),
             }
@@ -336,7 +336,7 @@ def _page(result: dict, roots: list[Path], seconds: float, quick: bool, shown: l
         "|---|---:|---|---:|---:|---:|---:|---:|---:|",
     ]
     for r in result["rows"]:
-        p = r["pattern"] or {}
+        p = r["record"] or {}
         if r["read"]:
             read, slope = f"{p['read']:+.3f} ± {p['stderr']:.3f}", f"{p['slope']:+.3f}"
         else:
