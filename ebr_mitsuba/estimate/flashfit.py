@@ -455,6 +455,7 @@ TABLE_SIZE = 1024  # θ samples of the tabulated lobe (linear interpolation per 
 FOOTPRINT_ROUGHNESS = 0.3  # below it the lobe is averaged over each pixel's footprint ...
 FOOTPRINT_SAMPLES = 3  # ... at FOOTPRINT_SAMPLES² points per pixel
 FOOTPRINT_MAX_SIZE = 1024  # ... for the full-size maps only up to this side (module docstring)
+FIT_SIZE = 256  # default largest side the profile is read at (FlashFitConfig.fit_size)
 
 
 @config(error=InputError)
@@ -469,7 +470,7 @@ class FlashFitConfig:
     clip: float = option(0.995, "photo value counted as saturated", above=0, maximum=1)
     saturation_weight: float = option(0.05, "weight of the saturation-consistency term", minimum=0)
     fit_size: int = option(
-        256,
+        FIT_SIZE,
         'largest side the profile is fitted at (larger: area-averaged; module docstring, "Fit size")',
         minimum=32,
     )
@@ -693,14 +694,14 @@ class FarPair:
         nf = torch.from_numpy(np.asarray(self.noflash, np.float64)).reshape(-1, 3)
         sat = torch.from_numpy(np.asarray(self.saturated, bool).reshape(-1))
         cos = torch.from_numpy(view_directions(h, w, self.camera)[..., 2].astype(np.float64)).reshape(-1)
-        shade = float(self.intensity) * cos / (math.pi * (float(self.camera[2]) / cos) ** 2)
+        shade = flat_shading(cos, float(self.camera[2]), float(self.intensity))
         g = ((fl - nf) * to_radiance).mean(-1) / shade  # not clamped: module docstring, "Noise"
         return _FarPixels(g, sat, cos)
 
     def shrunk(self, f: int) -> FarPair:
         """The pair area-averaged over f × f blocks (a saturated pixel saturates its block)."""
-        small_sat = _area(np.asarray(self.saturated, np.float32), f) > 0
-        return replace(self, flash=_area(self.flash, f), noflash=_area(self.noflash, f), saturated=small_sat)
+        flash, noflash, saturated = area_shots(f, self.flash, self.noflash, self.saturated)
+        return replace(self, flash=flash, noflash=noflash, saturated=saturated)
 
 
 @dataclass
@@ -769,13 +770,11 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
     # co-located flash over the flat sample (z = 0): cos θ = v_z and d = camera_z / cos θ
     v = torch.from_numpy(view_directions(h, w, camera)).reshape(-1, 3)
     cos = v[:, 2].contiguous()
-    d2 = (float(camera[2]) / cos) ** 2
-    shade = intensity * cos / (math.pi * d2)  # G(x): unit-albedo diffuse flash radiance, flat normal
+    shade = flat_shading(cos, float(camera[2]), intensity)  # G(x): unit-albedo diffuse, flat normal
     g = f_only.mean(-1) / shade
 
     # rings of equal pixel count over cos θ; the median of each over unsaturated pixels
-    edges = torch.quantile(cos, torch.linspace(0, 1, opts.bins + 1, dtype=torch.float64))
-    ring = torch.bucketize(cos, edges[1:-1])
+    ring = ring_index(cos, opts.bins)
     ring_cos = torch.zeros(opts.bins, dtype=torch.float64)
     ring_med = torch.full((opts.bins,), float("nan"), dtype=torch.float64)
     ring_sat = torch.zeros(opts.bins, dtype=torch.float64)
@@ -1128,6 +1127,29 @@ def _footprint_cos(h: int, w: int, camera, samples: int = FOOTPRINT_SAMPLES) -> 
     return torch.from_numpy(np.ascontiguousarray(cos).reshape(h * w, s * s))
 
 
+def flat_shading(cos, camera_z: float, intensity: float):
+    """G(x) = intensity · cos θ / (π d²), d = camera_z / cos θ: the flash's radiance off a flat
+    unit-albedo diffuse sample seen from the flash (``cos`` a numpy array or a torch tensor)."""
+    return intensity * cos / (math.pi * (camera_z / cos) ** 2)
+
+
+def ring_index(cos: torch.Tensor, bins: int) -> torch.Tensor:
+    """Each pixel's ring (N,) int64: ``bins`` rings of equal pixel count over ``cos`` (N,) float64."""
+    edges = torch.quantile(cos, torch.linspace(0, 1, bins + 1, dtype=torch.float64))
+    return torch.bucketize(cos, edges[1:-1])
+
+
+def shrink_factor(h: int, w: int, size: int) -> int:
+    """The block size f that brings the larger of ``h``, ``w`` to at most ``size`` (1: none)."""
+    return -(-max(h, w) // size)
+
+
+def area_shots(f: int, flash: np.ndarray, noflash: np.ndarray, saturated: np.ndarray):
+    """``flash``, ``noflash`` and the (H, W) bool ``saturated`` averaged over f × f blocks (a
+    saturated pixel saturates its block)."""
+    return _area(flash, f), _area(noflash, f), _area(np.asarray(saturated, np.float32), f) > 0
+
+
 def _area(a: np.ndarray, f: int) -> np.ndarray:
     """``a`` (H, W[, C]) centre-cropped to a multiple of ``f`` and averaged over f × f blocks."""
     h, w = (a.shape[0] // f) * f, (a.shape[1] // f) * f
@@ -1201,9 +1223,9 @@ def fit_flash(
         saturated = saturated.reshape(h, w)
     if far is not None:
         far = _checked_far(far, flash.shape, intensity, camera, clip)
-    f = -(-max(h, w) // opts.fit_size)
-    if f > 1:  # a saturated pixel saturates its block
-        small = (_area(flash, f), _area(noflash, f), _area(saturated.astype(np.float32), f) > 0)
+    f = shrink_factor(h, w, opts.fit_size)
+    if f > 1:
+        small = area_shots(f, flash, noflash, saturated)
         far = None if far is None else far.shrunk(f)
     else:
         small = (flash, noflash, saturated)
@@ -1218,7 +1240,7 @@ def fit_flash(
     signed = (fl - nf) * to_radiance  # the flash-only image, unclamped (module docstring, "Noise")
     f_only = signed.clamp_min(0.0)  # clamped for the diffuse maps
     cos = torch.from_numpy(view_directions(h, w, camera)[..., 2].astype(np.float32)).reshape(-1)
-    shade = intensity * cos / (math.pi * (float(camera[2]) / cos) ** 2)  # G(x), unit albedo, flat
+    shade = flat_shading(cos, float(camera[2]), intensity)  # G(x), unit albedo, flat
     footprint = r_fit < FOOTPRINT_ROUGHNESS and max(h, w) <= FOOTPRINT_MAX_SIZE  # "The lobe per pixel"
     lobe = _LobeTable(cos, _footprint_cos(h, w, camera) if footprint else None)
     if metal:

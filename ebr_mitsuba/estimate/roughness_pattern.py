@@ -61,14 +61,25 @@ import torch
 from ..errors import InputError
 from ..floors import ROUGHNESS_MIN
 from ..geometry import DEFAULT_FLASH_INTENSITY, NEAR_DISTANCE, view_directions
-from .flashfit import FOOTPRINT_ROUGHNESS, NOFLASH_MIN, TRIM, FlashFit, _area, _footprint_cos, _LobeTable
+from .flashfit import (
+    FIT_SIZE,
+    FOOTPRINT_ROUGHNESS,
+    NOFLASH_MIN,
+    TRIM,
+    FlashFit,
+    _footprint_cos,
+    _LobeTable,
+    area_shots,
+    flat_shading,
+    ring_index,
+    shrink_factor,
+)
 
 __all__ = ["RoughnessPattern", "read_roughness_pattern"]
 
 MAX_ROUGHNESS = 0.7  # above it the lobe's slope in r is too small to read (module docstring)
 MAX_SLOPE = 0.15  # |k| read is capped here (roughness per unit of log-albedo) ...
 GAIN = 2.0  # ... and the map takes GAIN × the capped k (the reading is diluted: module docstring)
-FIT_SIZE = 256  # photos larger than this are area-averaged to it for the reading
 BINS = 32  # rings of equal pixel count over cos θ, as the profile's
 SHARE_FLOOR = 0.02  # the no-flash albedo share p is floored here before its log
 ALBEDO_FLOOR = 0.01  # the diffuse map's grey level is floored here before its log
@@ -159,12 +170,12 @@ def read_roughness_pattern(
         return _skip(f"roughness {fit.roughness:.3g} > {MAX_ROUGHNESS:g}")
     h, w, _ = flash.shape
     sat = np.zeros((h, w), bool) if saturated is None else np.asarray(saturated, bool).reshape(h, w)
-    f = -(-max(h, w) // FIT_SIZE)
-    if f > 1:  # a saturated pixel saturates its block
-        flash, noflash, sat = _area(flash, f), _area(noflash, f), _area(sat.astype(np.float64), f) > 0
+    f = shrink_factor(h, w, FIT_SIZE)  # read at the flash fit's size
+    if f > 1:
+        flash, noflash, sat = area_shots(f, flash, noflash, sat)
         h, w = flash.shape[:2]
-    cos = view_directions(h, w, camera)[..., 2].reshape(-1)
-    shade = intensity * cos / (math.pi * (float(camera[2]) / cos) ** 2)
+    cos = np.ascontiguousarray(view_directions(h, w, camera)[..., 2]).reshape(-1)
+    shade = flat_shading(cos, float(camera[2]), intensity)
     g = (flash - noflash).mean(-1).reshape(-1) * to_radiance / shade
     nf = noflash.mean(-1).reshape(-1)
     ok = ~sat.reshape(-1) & np.isfinite(g) & (nf > 0)
@@ -179,8 +190,7 @@ def read_roughness_pattern(
     slope = ((table(hi, fit.f0) - table(lo, fit.f0)) / (hi - lo)).numpy()
     e = g - float(np.mean(fit.level)) * p - table(r0, fit.f0).numpy()
 
-    edges = np.quantile(cos, np.linspace(0.0, 1.0, BINS + 1))
-    ring = np.clip(np.searchsorted(edges[1:-1], cos), 0, BINS - 1)
+    ring = ring_index(cos_t, BINS).numpy()
     rows_a, rows_y, rows_w = [], [], []
     for k in range(BINS):
         inside = (ring == k) & ok
