@@ -110,6 +110,47 @@ def validation_note(var: str, page: str) -> str | None:
     return None if validation_sets(var) else f"set ${var} (or $EBR_VAL_DATA); see docs/bench/{page}"
 
 
+def measure_validation(var: str, page: str, measure, out_dir: Path | str):
+    """The common start of a validation benchmark's ``run``: its data sets (:func:`validation_sets`
+    of ``$var``; none: an :class:`~ebr_mitsuba.errors.InputError` saying how to name them),
+    ``measure(roots)`` timed, and ``out_dir`` made. Returns ``(roots, result, seconds, out_dir)``."""
+    from ..errors import InputError
+
+    roots = validation_sets(var)
+    if not roots:
+        raise InputError(validation_note(var, page))
+    t0 = time.perf_counter()
+    result = measure(roots)
+    seconds = time.perf_counter() - t0
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    return roots, result, seconds, out_dir
+
+
+def thumbnail_grid(rows: list[dict], columns, image, title, path: Path, **imshow) -> None:
+    """A picture of one row of thumbnails per entry of ``rows`` (labelled with its ``material``) and
+    one column per name in ``columns``: ``image(row, column)`` drawn with the ``imshow`` options,
+    ``title(row, column)`` above it; saved to ``path``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(
+        len(rows), len(columns), figsize=(2.2 * len(columns), 2.25 * len(rows)), squeeze=False
+    )
+    for ax_row, r in zip(axes, rows):
+        for ax, col in zip(ax_row, columns):
+            ax.imshow(image(r, col), **imshow)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            ax.set_title(title(r, col), fontsize=8)
+        ax_row[0].set_ylabel(f"{r['material'][:22]}", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
 def named_runs(var: str, hint: str, required: bool = True) -> list[tuple[str, Path]]:
     """The training runs named in ``$var`` (``NAME=RUN_DIR`` separated by ``;``), in order, each
     with ``RUN_DIR/model.pt``; an :class:`~ebr_mitsuba.errors.InputError` ending in ``hint`` for a

@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ._common import machine, validation_note, validation_sets
+from ._common import machine, measure_validation, validation_note, validation_sets
 
 PAGE = "flash_fit.md"
 METAL_F0 = 0.1  # a capture whose true specular map averages above this is a metal (left out)
@@ -329,18 +329,12 @@ def _page(result: dict, roots: list[Path], seconds: float, quick: bool) -> str:
 def run(out_dir: Path | str, quick: bool = False) -> Path:
     """Measure every capture of the data sets (``--quick``: the first :data:`QUICK_SAMPLES` of
     each) and write ``out_dir/flash_fit.md`` with its JSON record and plot."""
-    import time
-
     from ..fsutil import atomic_write_text
 
-    roots = data_sets()
-    if not roots:
-        raise InputError(unavailable())
-    t0 = time.perf_counter()
-    result = measure(roots, limit=QUICK_SAMPLES if quick else 0, progress=_log)
-    seconds = time.perf_counter() - t0
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    limit = QUICK_SAMPLES if quick else 0
+    roots, result, seconds, out_dir = measure_validation(
+        "EBR_FLASHFIT_DATA", PAGE, lambda roots: measure(roots, limit=limit, progress=_log), out_dir
+    )
     _plot(result, out_dir / "flash_fit.png")
     atomic_write_text(out_dir / "flash_fit.json", json.dumps(result, indent=1) + "\n")
     atomic_write_text(out_dir / PAGE, _page(result, roots, seconds, quick))

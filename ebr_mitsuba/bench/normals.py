@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ._common import machine, validation_note, validation_sets
+from ._common import machine, measure_validation, thumbnail_grid, validation_note, validation_sets
 
 PAGE = "normals.md"
 VARIANTS = ("flat", "albedo-following", "with relief")
@@ -213,30 +213,19 @@ def _summary(rows: list[dict]) -> dict:
 def _picture(result: dict, path: Path) -> list[dict]:
     """Truth | albedo-following | with relief normals (as (n+1)/2) of the captures the relief
     changed most; returns those rows."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     read = [r for r in result["rows"] if r["read"]]
     change = lambda r: abs(r["with relief"]["normal"] - r["albedo-following"]["normal"])  # noqa: E731
     shown = sorted(read, key=change, reverse=True)[:PICTURES]
-    if not shown:
-        return []
-    cols = ("truth", "albedo-following", "with relief")
-    fig, axes = plt.subplots(len(shown), 3, figsize=(6.6, 2.25 * len(shown)), squeeze=False)
-    for ax_row, r in zip(axes, shown):
-        for ax, col in zip(ax_row, cols):
-            n = result["thumbs"][(r["data"], r["index"], col)]
-            ax.imshow(np.clip((np.asarray(n) + 1) / 2, 0, 1))
-            ax.set_xticks([])
-            ax.set_yticks([])
-            label = col if col == "truth" else f"{col}: {r[col]['normal']:.4f}"
-            ax.set_title(label, fontsize=8)
-        ax_row[0].set_ylabel(f"{r['material'][:22]}", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    if shown:
+        thumbnail_grid(
+            shown,
+            ("truth", "albedo-following", "with relief"),
+            lambda r, col: np.clip(
+                (np.asarray(result["thumbs"][(r["data"], r["index"], col)]) + 1) / 2, 0, 1
+            ),
+            lambda r, col: col if col == "truth" else f"{col}: {r[col]['normal']:.4f}",
+            path,
+        )
     return shown
 
 
@@ -393,18 +382,12 @@ def _page(result: dict, roots: list[Path], seconds: float, quick: bool, shown: l
 def run(out_dir: Path | str, quick: bool = False) -> Path:
     """Measure every capture of the data sets (``--quick``: the first :data:`QUICK_SAMPLES` of
     each) and write ``out_dir/normals.md`` with its JSON record and picture."""
-    import time
-
     from ..fsutil import atomic_write_text
 
-    roots = data_sets()
-    if not roots:
-        raise InputError(unavailable())
-    t0 = time.perf_counter()
-    result = measure(roots, limit=QUICK_SAMPLES if quick else 0, progress=_log)
-    seconds = time.perf_counter() - t0
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    limit = QUICK_SAMPLES if quick else 0
+    roots, result, seconds, out_dir = measure_validation(
+        "EBR_NORMALS_DATA", PAGE, lambda roots: measure(roots, limit=limit, progress=_log), out_dir
+    )
     shown = _picture(result, out_dir / "normals.png")
     _gain_picture(result, out_dir / "normals_gains.png")
     # the per-capture gain grids stay out of the record (the summaries have their means per data set)

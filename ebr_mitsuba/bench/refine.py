@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ._common import machine, validation_note, validation_sets
+from ._common import machine, measure_validation, validation_note, validation_sets
 
 PAGE = "refine.md"
 QUICK_SAMPLES = 1
@@ -230,23 +230,15 @@ def _page(result: dict, roots: list[Path], seconds: float, quick: bool) -> str:
 def run(out_dir: Path | str, quick: bool = False) -> Path:
     """Measure every capture of the data sets (``--quick``: the first :data:`QUICK_SAMPLES` of
     each, :data:`QUICK_STEPS` steps) and write ``out_dir/refine.md`` with its JSON record."""
-    import time
-
     from ..fsutil import atomic_write_text
 
-    roots = data_sets()
-    if not roots:
-        raise InputError(unavailable())
-    t0 = time.perf_counter()
-    result = measure(
-        roots,
-        limit=QUICK_SAMPLES if quick else 0,
-        steps=QUICK_STEPS if quick else STEPS,
-        progress=_log,
+    limit, steps = (QUICK_SAMPLES, QUICK_STEPS) if quick else (0, STEPS)
+    roots, result, seconds, out_dir = measure_validation(
+        "EBR_REFINE_DATA",
+        PAGE,
+        lambda roots: measure(roots, limit=limit, steps=steps, progress=_log),
+        out_dir,
     )
-    seconds = time.perf_counter() - t0
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out_dir / "refine.json", json.dumps(result, indent=1) + "\n")
     atomic_write_text(out_dir / PAGE, _page(result, roots, seconds, quick))
     return out_dir / PAGE
