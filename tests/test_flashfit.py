@@ -452,6 +452,13 @@ def test_pixel_median_reading_resists_a_minority_of_glints():
     assert abs(median["roughness"] - 0.5) <= 0.02 < abs(profile.roughness - 0.5), (median, profile.roughness)
     assert fit.roughness == pytest.approx(0.5 * (median["roughness"] + profile.roughness))
     assert fit.to_json()["pixel_median"] == median
+    for weight in (0.0, 0.75, 1.0):  # the share of the median reading (FlashFitConfig.median_weight)
+        weighted = fit_flash(
+            flash, noflash, to_radiance=1 / exposure, options=FlashFitConfig(median_weight=weight)
+        )
+        want = weight * median["roughness"] + (1.0 - weight) * median["profile"]
+        assert weighted.roughness == pytest.approx(want, abs=1e-3), weight
+        assert weighted.pixel_median == median
 
 
 def test_pixel_median_reading_not_used_for_a_lobe_it_cannot_resolve():

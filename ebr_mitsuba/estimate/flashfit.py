@@ -177,6 +177,16 @@ roughness map is better (by over 0.005) in 13 and worse in 1. Adding the central
 residual to the median cost (weight 1, so that a sharp lobe cannot hide) made both sets worse
 (0.0700 / 0.133). On the test split (``docs/models.md``, measured after the choice) the
 estimate's roughness RMSE went 0.0653 → 0.0604, its mean per-map RMSE 0.0317 → 0.0305.
+The two readings' shares (``median_weight``, the median's; 0.5 above) re-checked on 2026-12-08
+with the roughness pattern on, ``ebr estimate``'s roughness map per set (``configs/data_real_val.toml``
+24, ``configs/data_real_val2.toml`` 48, ``configs/data_proc_val.toml`` 24 procedural draws) at
+weights 0.5 / 0.75 / 1: 0.06422 / 0.06458 / 0.06503, 0.07290 / 0.07012 / 0.06795 and 0.10665 /
+0.10859 / 0.11013 (mean per-map 0.04188 / 0.04194 / 0.04219, 0.03833 / 0.03764 / 0.03711, 0.05231
+/ 0.05279 / 0.05318; held-out re-render within 0.0001). Over all 96 the median alone is ahead
+(0.0792 → 0.0778), but only through the second set: two sets of three prefer the even blend, so
+it stays. The median alone helps where relief makes the ring means over-read (acg_Ground080
+0.0629 → 0.0584, a plastered wall 0.0513 → 0.0463) and hurts flat samples (a wallpaper 0.0114 →
+0.0189, a concrete 0.0328 → 0.0408).
 
 The far pair. A near-far capture (``docs/conventions.md``, "Geometry") adds a far flash / no-flash
 pair on the same pixel grid (the far frame is the same sample square), its flash as far as its
@@ -536,8 +546,15 @@ class FlashFitConfig:
     )
     pixel_median: bool = option(
         True,
-        "near shots alone: the roughness is the mean of the profile's and a second reading off the "
-        'ring medians of each pixel\'s residual (module docstring, "The pixel-median reading")',
+        "near shots alone: the roughness blends the profile's with a second reading off the ring "
+        'medians of each pixel\'s residual (median_weight; module docstring, "The pixel-median reading")',
+    )
+    median_weight: float = option(
+        0.5,
+        "the pixel-median reading's share of the roughness where it is used (the profile's: the "
+        'rest; module docstring, "The pixel-median reading")',
+        minimum=0,
+        maximum=1,
     )
 
     def __post_init__(self):
@@ -936,7 +953,7 @@ def _profile(flash, noflash, saturated, to_radiance, intensity, camera, clip, op
         used = r_med >= MEDIAN_MIN_ROUGHNESS
         median = {"roughness": round(r_med, 4), "profile": round(r_best, 4), "used": used}
         if used:
-            r_best = 0.5 * (r_best + r_med)
+            r_best = (1.0 - opts.median_weight) * r_best + opts.median_weight * r_med
     return _Profile(r_best, False, grid.numpy(), costs.numpy(), use_far, relief, misfit, median, decision)
 
 
