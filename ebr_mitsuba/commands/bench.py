@@ -1,7 +1,7 @@
 """Measure speed against error and write the tables and plots (docs/bench/ in a checkout).
 
   ebr bench [renderer|generate|extract-sg|estimate|sizes|models|fivelight|mair|insert|flash-fit|
-             normals|roughness|refine|all]
+             normals|roughness|tilt|refine|all]
             [--out DIR] [--quick] [--json]
 
 Each benchmark writes ``OUT/<name>.md`` (a Markdown table with the reference it was measured
@@ -48,6 +48,10 @@ against, and the PNG plots it links) and returns its path:
   against the map that follows the albedo, over a grid of gains: roughness RMSE, mean per-map RMSE,
   held-out re-render, pictures (writes ``roughness.md``; needs ``EBR_ROUGHNESS_DATA`` or
   ``EBR_VAL_DATA``);
+* ``tilt``: ``ebr estimate``'s highlight tilt on the metal and glossy validation captures that keep
+  the network's normals: the network's normals, the flat normal and the flat normal tilted to the
+  clipped highlight, by normal RMSE, mean per-map RMSE and held-out re-render, a picture of the
+  highlights read (writes ``tilt.md``; needs ``EBR_TILT_DATA`` or ``EBR_VAL_DATA``);
 * ``refine``: test-time refinement judged by the maps and by held-out lights: each refinement
   variant against the same estimates without it, how often it lowers the mean per-map RMSE, the
   held-out re-render and both (writes ``refine.md``; needs ``EBR_REFINE_DATA`` or ``EBR_VAL_DATA``).
@@ -96,6 +100,7 @@ BENCHMARKS = (
     "flash-fit",
     "normals",
     "roughness",
+    "tilt",
     "refine",
 )
 OUTSIDE_CHECKOUT = Path("ebr-bench")

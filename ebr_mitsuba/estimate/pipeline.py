@@ -167,6 +167,13 @@ class EstimateConfig:
         "(estimate/shading_normals.py); --no-shading-normals keeps the network's normals",
         flag="--shading-normals",
     )
+    highlight_tilt: bool = option(
+        True,
+        "where the network's normals would be kept (a metal, a glossy sample), the flat normal tilted "
+        "to where the flash shot's clipped highlight sits (estimate/highlight_tilt.py); "
+        "--no-highlight-tilt keeps the network's",
+        flag="--highlight-tilt",
+    )
     roughness_pattern: bool = option(
         True,
         "the roughness map follows the albedo texture by a slope read off the flash highlight "
@@ -312,6 +319,25 @@ def fit_capture_flash(inputs: Inputs, fov: float, far_ratio: float | None = None
         options=options,
         far=far_pair,
     )
+
+
+def _highlight_normals(flash_fit, work_inputs: Inputs, fov: float, log) -> tuple[dict, np.ndarray | None]:
+    """The normals of a capture that keeps the network's: the flat normal tilted to where the flash
+    shot's clipped highlight sits (:mod:`.highlight_tilt`), or None where that reading is not
+    trusted; with the ``estimate.json`` record."""
+    from .highlight_tilt import read_highlight_tilt, tilted_normals
+
+    sat = np.asarray(work_inputs.saturated, bool)
+    if work_inputs.clip_level is not None:  # the near flash shot's own clipped pixels
+        sat = sat & (work_inputs.images["flash"].max(axis=-1) >= 0.5 * work_inputs.clip_level)
+    tilt = read_highlight_tilt(sat, near_distance(fov), flash_fit.roughness)
+    if not tilt.applied:
+        return tilt.to_json(), None
+    log(
+        f"tilting the flat normal to the clipped highlight: {tilt.degrees:.2f}° "
+        f"(slopes {tilt.slope[0]:+.4f}, {tilt.slope[1]:+.4f}; estimate/highlight_tilt.py)"
+    )
+    return tilt.to_json(), tilted_normals(sat.shape, tilt.slope)
 
 
 def _with_roughness_pattern(flash_fit, work_inputs: Inputs, fov: float, log):
@@ -642,7 +668,7 @@ def run_estimate(
         tiles, tile, ensemble = len(pred.tiles), pred.tile, list(pred.members)
         stage("maps", t0)
 
-    flash_fit, shading, shading_fit = None, None, None
+    flash_fit, shading, shading_fit, highlight = None, None, None, None
     if cfg.flash_fit:
         from .flashfit import FlashFitConfig
 
@@ -691,6 +717,10 @@ def run_estimate(
                     "ebr estimate (shading normals, flash fit)",
                 )
             stage("shading normals", t0)
+        if shading_fit is None and cfg.highlight_tilt:
+            highlight, tilted = _highlight_normals(flash_fit, work_inputs, inputs.fov, log)
+            if tilted is not None:
+                normal, source = tilted, "ebr estimate (flat normals tilted to the highlight, flash fit)"
         if flash_fit.misfits(fit_options.misfit_limit):
             log(
                 f"the flash profile fits poorly (ring residual {flash_fit.misfit:.3g} > "
@@ -799,6 +829,7 @@ def run_estimate(
         },
         "flash_fit": None if flash_fit is None else flash_fit.to_json(),
         "shading_normals": shading,
+        "highlight_tilt": highlight,
         "lobes": 0 if final_env is None else final_env.num_lobes,
         "horizon_lobes": horizon,
         "rerender_error": {"network": net_errors, "refined": final_errors if refined else None},

@@ -203,11 +203,22 @@ def flash_fit_rows(fit: dict) -> list[list]:
     return rows
 
 
-def _flash_fit_section(fit: dict | None, shading: dict | None) -> str:
+def _flash_fit_section(fit: dict | None, shading: dict | None, tilt: dict | None = None) -> str:
     if not fit:
         return ""
     rows = flash_fit_rows(fit)
-    if shading is not None:
+    if tilt is not None:  # a metal or a glossy sample: the network's normals or the highlight's tilt
+        why = "a metal" if fit.get("metal") else "a glossy sample: glints would mislead the shading fit"
+        if tilt.get("applied"):
+            slope = ", ".join(_fmt(x, 4) for x in tilt["slope"])
+            normals = (
+                f"flat, tilted {_fmt(tilt['degrees'], 2)}° to the flash shot's clipped highlight "
+                f"(slopes {slope}; {why}; --no-highlight-tilt keeps the network's)"
+            )
+        else:
+            normals = f"the network's ({why}; highlight tilt not used: {tilt.get('reason', 'off')})"
+        rows.append(["normals", normals])
+    elif shading is not None:
         normals = "the network's (a glossy sample: glints would mislead the shading fit)"
         if shading.get("applied"):
             normals = "shading normals: the albedo texture scaled by the flash / no-flash shading"
@@ -350,7 +361,11 @@ def render_report(out: Path, summary: dict) -> str:
         parts.append("<p>Network maps, before refinement:</p>")
         parts.append("".join(_img(out, f"maps_network/{m}.png", f"{m} (network)") for m in MAP_NAMES))
 
-    parts.append(_flash_fit_section(summary.get("flash_fit"), summary.get("shading_normals")))
+    parts.append(
+        _flash_fit_section(
+            summary.get("flash_fit"), summary.get("shading_normals"), summary.get("highlight_tilt")
+        )
+    )
 
     parts.append("<h2>Lighting</h2>")
     if summary["capture"] == "flash-only":

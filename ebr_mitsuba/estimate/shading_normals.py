@@ -148,7 +148,8 @@ validation set for g = 0 / 0.5 / 1, 0.02927 / 0.02928 / 0.02937 on the second, 0
 What it cannot see: relief whose albedo correlation changes sign within the sample (one ``c`` per
 capture), relief under a sky whose gradient is parallel to the flash's tilt everywhere (one slope
 component per pixel, the same one), and relief finer than the photo's noise. A metal (no
-diffuse part: the flash fit's ``metal``) keeps the network's normals. Cost at 256²: about 0.18 s
+diffuse part: the flash fit's ``metal``) keeps the network's normals (``ebr estimate`` tilts the flat
+normal to the clipped highlight instead where it can: :mod:`.highlight_tilt`). Cost at 256²: about 0.18 s
 in all (``estimate.json``'s timings), of which the relief about 0.15 s (the likelihood on every
 fourth pixel per axis, 80 conjugate-gradient steps).
 """

@@ -107,10 +107,12 @@ def estimate_sample(
     flash_fit: bool = True,
     far: bool = True,
     nominal: float | None = None,
+    options: dict | None = None,
 ):
     """What ``ebr estimate`` makes of sample ``index`` of the data set ``root`` from its photo files
     (:func:`estimate_predictor`, whose arguments these are; ``nominal``: the data set's
-    :func:`nominal_flash_intensity`, read when not given): the
+    :func:`nominal_flash_intensity`, read when not given; ``options``: further
+    :class:`~ebr_mitsuba.estimate.pipeline.EstimateConfig` fields, e.g. ``{"highlight_tilt": False}``): the
     :class:`~ebr_mitsuba.estimate.pipeline.EstimateResult`, its files written into a temporary
     directory and dropped."""
     import tempfile
@@ -139,6 +141,7 @@ def estimate_sample(
             refine=refine or RefineConfig(),
             flash_intensity=intensity,
             flash_fit=flash_fit,
+            **(options or {}),
         )
         return run_estimate(cfg, predictor=predictor)
 
