@@ -413,6 +413,24 @@ On the same 24 validation captures the estimate's diffuse RMSE went 0.04758 → 
 default 0.5) made it worse, 0.04934 and 0.05184. The pattern's noise is not what limits the diffuse
 map here; the network's share already averages it.
 
+Known bias (measured 2026-12-08): a glossy sample whose roughness varies reads rough once its
+highlight is clipped. In the lobe's tail (view angles well past α) the GGX term goes as α², so
+the rougher pixels dominate the rings outside the clipped disc and the disc's edge alike; a fit
+that sees only the tail reads about (mean r⁴)^¼ rather than the mean. The glazed tile set
+acg_Tiles078 of the test split (roughness 0.03–0.12, mean 0.068, (mean r⁴)^¼ 0.084) reads 0.06
+from a noise-free render of its true maps with nothing clipped, 0.06 / 0.05 / 0.09 / 0.10 with
+50 / 200 / 500 / 1000 pixels clipped, and 0.09 from its photos (about 500 clipped); with flat
+normals and a constant roughness the same renders read 0.07–0.08. The saturation term does not help (its
+disc edge is in the tail too: at weights 0.05 / 0.2 / 1 the read stays 0.09), nor does predicting
+the clipping per colour channel (a pixel clips when any channel does; on flat, constant renders
+this took 0.08 back to 0.07, but on the validation photos it moved rough captures whose scattered
+bright pixels clip, a wallpaper 0.65 → 0.745–0.825 for 0.657: RMS error of the fitted roughness
+0.0460 → 0.0470 and 0.107 → 0.114 on the two real sets). With that tile set's normals tilted to
+its highlight (:mod:`.highlight_tilt`), a roughness 0.03 lower would take three of its four test
+captures' held-out re-render from 3.83–3.86 to 2.90–3.23. The spread of the roughness is what is
+missing; in the tail each pixel's lobe is proportional to its own α², so the ring-wise spread of
+the flash-only residual could read it (not tried).
+
 Tried and dropped (2026-12-06): searching for the mirror point. A sample whose mean normal is
 tilted has its highlight off the frame centre (a glazed tile set of the test split is tilted by
 0.3°, 1.6 pixels at 256²), so for lobes sharper than roughness 0.3 the lens and flash position of
