@@ -45,18 +45,19 @@ def test_every_option_is_a_config_field_and_every_field_a_flag():
         for cls, name in (
             (EstimateConfig, "flash_fit"),
             (EstimateConfig, "shading_normals"),
+            (EstimateConfig, "highlight_tilt"),
             (EstimateConfig, "roughness_pattern"),
             (EstimateConfig, "drop_horizon_lobes"),
             (MultiViewConfig, "view_fit"),
             (MultiViewConfig, "pixel_albedo"),
             (MultiViewConfig, "azimuthal_env"),
         )
-    }  # --no-flash-fit, --no-shading-normals, --no-roughness-pattern, --no-drop-horizon-lobes,
-    # --no-view-fit, --no-pixel-albedo, --no-azimuthal-env
+    }  # --no-flash-fit, --no-shading-normals, --no-highlight-tilt, --no-roughness-pattern,
+    # --no-drop-horizon-lobes, --no-view-fit, --no-pixel-albedo, --no-azimuthal-env
     assert options - NOT_CONFIG - bool_negations == flags
     assert {"--no-flash-fit", "--no-shading-normals", "--drop-horizon-lobes", "--no-view-fit"} <= options
     assert "--no-pixel-albedo" in options and "--no-azimuthal-env" in options
-    assert "--no-roughness-pattern" in options
+    assert "--no-roughness-pattern" in options and "--no-highlight-tilt" in options
     # every field of EstimateConfig (but the nested RefineConfig and ShadingNormalsConfig) and
     # FiveLightConfig is a flag
     assert set(ESTIMATE_FLAGS) == {f.name for f in dataclasses.fields(EstimateConfig)} - {"refine", "shading"}
