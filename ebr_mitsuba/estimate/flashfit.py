@@ -431,6 +431,17 @@ captures' held-out re-render from 3.83–3.86 to 2.90–3.23. The spread of the 
 missing; in the tail each pixel's lobe is proportional to its own α², so the ring-wise spread of
 the flash-only residual could read it (not tried).
 
+Tried and dropped (2026-12-08), on the metal captures of the validation sets (a polished copper,
+acg_Metal034, three times; acg_Metal055A; five procedural metals), judged by ``ebr estimate``'s
+maps: (i) the metal hypothesis's saturation term per colour channel (F0's colour read off the
+flash-only image's channel shares): no metal moved, and a corrugated steel of the test split read
+as a dielectric became a metal of roughness 0.56 (truth 0.40); (ii) the roughness between grid
+steps, at the vertex of the parabola through the best step's cost and its neighbours': the
+copper read 0.08 / 0.08 / 0.09 → 0.084 / 0.076 / 0.085 (truth 0.074; held-out re-render 10.4 /
+10.0 / 14.0 → 12.3 / 8.0 / 12.3), the procedural metals within 0.005 either way, the glazed tile
+set above 0.09 → 0.093: the cost between steps is not smooth enough (its saturation terms count
+pixels) for the vertex to be a better reading.
+
 Tried and dropped (2026-12-06): searching for the mirror point. A sample whose mean normal is
 tilted has its highlight off the frame centre (a glazed tile set of the test split is tilted by
 0.3°, 1.6 pixels at 256²), so for lobes sharper than roughness 0.3 the lens and flash position of
