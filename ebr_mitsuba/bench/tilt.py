@@ -136,12 +136,13 @@ def measure(roots: list[Path], limit: int = 0, progress=None) -> dict:
 def _crop(flash: np.ndarray) -> np.ndarray:
     """The centre (CROP² at the fit size) of a flash shot (H, W, 3), log-scaled to [0, 1], for the
     picture."""
-    from ..estimate.flashfit import FIT_SIZE, _area, shrink_factor
+    from ..estimate.flashfit import FIT_SIZE, shrink_factor
+    from ..imageio import resize_area
 
-    flash = np.asarray(flash, np.float64)
+    flash = np.asarray(flash, np.float32)
     f = shrink_factor(*flash.shape[:2], FIT_SIZE)
     if f > 1:
-        flash = _area(flash, f)
+        flash = resize_area(flash, (flash.shape[0] // f, flash.shape[1] // f))
     grey = flash.mean(axis=-1)
     h, w = grey.shape
     y0, x0 = (h - CROP) // 2, (w - CROP) // 2

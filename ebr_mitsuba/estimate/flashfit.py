@@ -1193,7 +1193,13 @@ def shrink_factor(h: int, w: int, size: int) -> int:
 def area_shots(f: int, flash: np.ndarray, noflash: np.ndarray, saturated: np.ndarray):
     """``flash``, ``noflash`` and the (H, W) bool ``saturated`` averaged over f × f blocks (a
     saturated pixel saturates its block)."""
-    return _area(flash, f), _area(noflash, f), _area(np.asarray(saturated, np.float32), f) > 0
+    return _area(flash, f), _area(noflash, f), area_mask(saturated, f)
+
+
+def area_mask(mask: np.ndarray, f: int) -> np.ndarray:
+    """An (H, W) bool ``mask`` on the grid of :func:`area_shots`: a block is set when any of its
+    f × f pixels is."""
+    return _area(np.asarray(mask, np.float32), f) > 0
 
 
 def _area(a: np.ndarray, f: int) -> np.ndarray:

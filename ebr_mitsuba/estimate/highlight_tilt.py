@@ -118,7 +118,7 @@ def read_highlight_tilt(saturated: np.ndarray, camera_height: float, roughness: 
     docstring): ``saturated`` (H, W) bool, the flash shot's saturated pixels on the sample grid
     (larger grids are area-reduced to the flash fit's size, a saturated pixel saturating its
     block); ``camera_height`` the near camera's height; ``roughness`` the flash fit's."""
-    from .flashfit import FIT_SIZE, _area, shrink_factor
+    from .flashfit import FIT_SIZE, area_mask, shrink_factor
 
     if camera_height <= 0:
         raise InputError(f"highlight tilt: camera height {camera_height}; expected > 0")
@@ -127,7 +127,7 @@ def read_highlight_tilt(saturated: np.ndarray, camera_height: float, roughness: 
         raise InputError(f"highlight tilt: the saturation mask has shape {sat.shape}; expected (H, W)")
     f = shrink_factor(*sat.shape, FIT_SIZE)
     if f > 1:
-        sat = _area(sat.astype(np.float32), f) > 0
+        sat = area_mask(sat, f)
     h, w = sat.shape
     zero = np.zeros(2)
     if roughness > MAX_ROUGHNESS:
