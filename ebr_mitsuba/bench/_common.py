@@ -127,6 +127,31 @@ def measure_validation(var: str, page: str, measure, out_dir: Path | str):
     return roots, result, seconds, out_dir
 
 
+def validation_captures(roots: list[Path], page: str, limit: int = 0):
+    """Every capture of the validation data sets ``roots`` (the first ``limit`` of each when > 0), as
+    ``(root, dataset, index, intensity)``: the :class:`~ebr_mitsuba.data.dataset.GeneratedDataset`
+    and its known flash intensity. A root that is not a data set of ``ebr generate`` is an
+    :class:`~ebr_mitsuba.errors.InputError` pointing at ``page``'s commands."""
+    from ..data.dataset import GeneratedDataset
+    from ..errors import InputError
+
+    for root in roots:
+        if not (root / "dataset.json").is_file():
+            raise InputError(f"{root}: not a data set of ebr generate; make it with the commands in {page}")
+        ds = GeneratedDataset(root)
+        intensity = float(ds.dataset["config"]["capture"]["flash_intensity"])
+        for i in range(len(ds) if limit <= 0 else min(limit, len(ds))):
+            yield root, ds, i, intensity
+
+
+def by_data_set(rows: list[dict], roots: list[Path], summarise) -> dict:
+    """``summarise(rows)`` per data set (rows by their ``"data"``, the root's name) and over ``"all"``,
+    leaving out groups without rows."""
+    groups = {r.name: [x for x in rows if x["data"] == r.name] for r in roots}
+    groups["all"] = rows
+    return {name: summarise(group) for name, group in groups.items() if group}
+
+
 def thumbnail_grid(rows: list[dict], columns, image, title, path: Path, **imshow) -> None:
     """A picture of one row of thumbnails per entry of ``rows`` (labelled with its ``material``) and
     one column per name in ``columns``: ``image(row, column)`` drawn with the ``imshow`` options,

@@ -37,8 +37,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from ._common import machine, measure_validation, thumbnail_grid, validation_note, validation_sets
+from ._common import (
+    by_data_set,
+    machine,
+    measure_validation,
+    thumbnail_grid,
+    validation_captures,
+    validation_note,
+    validation_sets,
+)
 
 PAGE = "normals.md"
 VARIANTS = ("flat", "albedo-following", "with relief")
@@ -94,7 +101,6 @@ def measure(roots: list[Path], limit: int = 0, progress=None) -> dict:
     """Per capture: each variant's metrics (module docstring), the relief record and small maps for
     the picture; per data set and over all: the means and how often the relief helped."""
     from .. import metrics
-    from ..data.dataset import GeneratedDataset
     from ..evaluation.evaluate import _at_size, _truth, estimate_sample
     from ..materials import resample_svbrdf
     from ..model.predict import load_predictor
@@ -103,46 +109,38 @@ def measure(roots: list[Path], limit: int = 0, progress=None) -> dict:
     predictor = load_predictor(None)
     pairs = metrics.rerender_pairs(0)
     rows, thumbs = [], {}
-    for root in roots:
-        if not (root / "dataset.json").is_file():
-            raise InputError(f"{root}: not a data set of ebr generate; make it with the commands in {PAGE}")
-        ds = GeneratedDataset(root)
-        intensity = float(ds.dataset["config"]["capture"]["flash_intensity"])
-        n = len(ds) if limit <= 0 else min(limit, len(ds))
-        for i in range(n):
-            item = ds[i]
-            truth = _truth(item)
-            result = estimate_sample(predictor, root, i, nominal=intensity)
-            truth_renders = metrics.rerenders(truth, pairs, intensity)
-            row = {
-                "data": root.name,
-                "index": i,
-                "material": str(ds.index["samples"][i]["material"]).split("/")[-1],
-                "read": result.shading is not None,
-                "relief": (result.get("shading_normals") or {}).get("relief"),
+    for root, ds, i, intensity in validation_captures(roots, PAGE, limit):
+        item = ds[i]
+        truth = _truth(item)
+        result = estimate_sample(predictor, root, i, nominal=intensity)
+        truth_renders = metrics.rerenders(truth, pairs, intensity)
+        row = {
+            "data": root.name,
+            "index": i,
+            "material": str(ds.index["samples"][i]["material"]).split("/")[-1],
+            "read": result.shading is not None,
+            "relief": (result.get("shading_normals") or {}).get("relief"),
+        }
+        base = result.maps
+        for name, normal in variant_normals(result).items():
+            maps = SVBRDF(normal, base.diffuse, base.specular, base.roughness, source=name)
+            maps = _at_size(maps, truth.shape)  # the working size may exceed the data set's
+            m = metrics.sample_metrics(maps, truth, pairs, intensity, truth_renders)
+            row[name] = {
+                "normal": m["per_map_rmse"]["normal"],
+                "mean": float(np.mean(list(m["per_map_rmse"].values()))),
+                "rerender": m["rerender_rmse"],
+                "spread": min(spread(maps.normal) / max(spread(truth.normal), 1e-6), 1.0),
             }
-            base = result.maps
-            for name, normal in variant_normals(result).items():
-                maps = SVBRDF(normal, base.diffuse, base.specular, base.roughness, source=name)
-                maps = _at_size(maps, truth.shape)  # the working size may exceed the data set's
-                m = metrics.sample_metrics(maps, truth, pairs, intensity, truth_renders)
-                row[name] = {
-                    "normal": m["per_map_rmse"]["normal"],
-                    "mean": float(np.mean(list(m["per_map_rmse"].values()))),
-                    "rerender": m["rerender_rmse"],
-                    "spread": min(spread(maps.normal) / max(spread(truth.normal), 1e-6), 1.0),
-                }
-                thumbs[(root.name, i, name)] = resample_svbrdf(maps, THUMB).normal
-            thumbs[(root.name, i, "truth")] = resample_svbrdf(truth, THUMB).normal
-            row["gains"] = _gain_grid(result, truth)
-            row["oracle_normal"] = _oracle_normal_rmse(truth)
-            rows.append(row)
-            if progress:
-                a, b = row["albedo-following"]["normal"], row["with relief"]["normal"]
-                progress(f"{root.name} {i}: {row['material']} normal RMSE {a:.4f} -> {b:.4f}")
-    groups = {r.name: [x for x in rows if x["data"] == r.name] for r in roots}
-    groups["all"] = rows
-    summary = {name: _summary(group) for name, group in groups.items() if group}
+            thumbs[(root.name, i, name)] = resample_svbrdf(maps, THUMB).normal
+        thumbs[(root.name, i, "truth")] = resample_svbrdf(truth, THUMB).normal
+        row["gains"] = _gain_grid(result, truth)
+        row["oracle_normal"] = _oracle_normal_rmse(truth)
+        rows.append(row)
+        if progress:
+            a, b = row["albedo-following"]["normal"], row["with relief"]["normal"]
+            progress(f"{root.name} {i}: {row['material']} normal RMSE {a:.4f} -> {b:.4f}")
+    summary = by_data_set(rows, roots, _summary)
     return {"rows": rows, "summary": summary, "thumbs": thumbs}
 
 

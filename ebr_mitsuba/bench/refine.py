@@ -25,8 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from ._common import machine, measure_validation, validation_note, validation_sets
+from ._common import machine, measure_validation, validation_captures, validation_note, validation_sets
 
 PAGE = "refine.md"
 QUICK_SAMPLES = 1
@@ -74,7 +73,6 @@ def measure(roots: list[Path], limit: int = 0, steps: int = STEPS, progress=None
     """Per capture and variant: the metrics before and after the refinement and its seconds; per
     data set and variant: the summary (module docstring)."""
     from .. import metrics
-    from ..data.dataset import GeneratedDataset
     from ..estimate.refine import RefineConfig
     from ..evaluation.evaluate import _at_size, _truth, estimate_sample
     from ..model.predict import load_predictor
@@ -83,36 +81,28 @@ def measure(roots: list[Path], limit: int = 0, steps: int = STEPS, progress=None
     pairs = metrics.rerender_pairs(0)
     configs = {name: RefineConfig(steps=steps, **fields) for name, fields in VARIANTS.items()}
     rows = []
-    for root in roots:
-        if not (root / "dataset.json").is_file():
-            raise InputError(f"{root}: not a data set of ebr generate; make it with the commands in {PAGE}")
-        ds = GeneratedDataset(root)
-        intensity = float(ds.dataset["config"]["capture"]["flash_intensity"])
-        n = len(ds) if limit <= 0 else min(limit, len(ds))
-        for i in range(n):
-            truth = _truth(ds[i])
-            truth_renders = metrics.rerenders(truth, pairs, intensity)
-            row = {
-                "data": root.name,
-                "index": i,
-                "material": str(ds.index["samples"][i]["material"]).split("/")[-1],
-            }
-            for name, cfg in configs.items():
-                result = estimate_sample(predictor, root, i, refine=cfg, nominal=intensity)
-                scores = {}
-                for when, maps in (("before", result.network_maps), ("after", result.maps)):
-                    m = metrics.sample_metrics(
-                        _at_size(maps, truth.shape), truth, pairs, intensity, truth_renders
-                    )
-                    scores[when] = {**m["per_map_rmse"], "rerender": m["rerender_rmse"]}
-                scores["seconds"] = float(result["refine"]["seconds"]) if result.get("refine") else 0.0
-                row[name] = scores
-            rows.append(row)
-            if progress:
-                cells = [
-                    f"{r['before']['mean']:.4f} -> {r['after']['mean']:.4f}" for r in map(row.get, configs)
-                ]
-                progress(f"{root.name} {i}: {row['material']}: mean per-map RMSE " + ", ".join(cells))
+    for root, ds, i, intensity in validation_captures(roots, PAGE, limit):
+        truth = _truth(ds[i])
+        truth_renders = metrics.rerenders(truth, pairs, intensity)
+        row = {
+            "data": root.name,
+            "index": i,
+            "material": str(ds.index["samples"][i]["material"]).split("/")[-1],
+        }
+        for name, cfg in configs.items():
+            result = estimate_sample(predictor, root, i, refine=cfg, nominal=intensity)
+            scores = {}
+            for when, maps in (("before", result.network_maps), ("after", result.maps)):
+                m = metrics.sample_metrics(
+                    _at_size(maps, truth.shape), truth, pairs, intensity, truth_renders
+                )
+                scores[when] = {**m["per_map_rmse"], "rerender": m["rerender_rmse"]}
+            scores["seconds"] = float(result["refine"]["seconds"]) if result.get("refine") else 0.0
+            row[name] = scores
+        rows.append(row)
+        if progress:
+            cells = [f"{r['before']['mean']:.4f} -> {r['after']['mean']:.4f}" for r in map(row.get, configs)]
+            progress(f"{root.name} {i}: {row['material']}: mean per-map RMSE " + ", ".join(cells))
     summary = {}
     for root in roots:
         group = [r for r in rows if r["data"] == root.name]

@@ -30,8 +30,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from ._common import machine, measure_validation, thumbnail_grid, validation_note, validation_sets
+from ._common import (
+    by_data_set,
+    machine,
+    measure_validation,
+    thumbnail_grid,
+    validation_captures,
+    validation_note,
+    validation_sets,
+)
 
 PAGE = "roughness.md"
 VARIANTS = ("constant", "pattern")
@@ -98,7 +105,6 @@ def measure(roots: list[Path], limit: int = 0, progress=None) -> dict:
     """Per capture: each variant's metrics and the gain grid (module docstring) and small maps for
     the picture; per data set and over all: the means and how often the pattern helped."""
     from .. import metrics
-    from ..data.dataset import GeneratedDataset
     from ..evaluation.evaluate import _at_size, _truth, estimate_sample
     from ..materials import resample_svbrdf
     from ..model.predict import load_predictor
@@ -107,54 +113,46 @@ def measure(roots: list[Path], limit: int = 0, progress=None) -> dict:
     predictor = load_predictor(None)
     pairs = metrics.rerender_pairs(0)
     rows, thumbs = [], {}
-    for root in roots:
-        if not (root / "dataset.json").is_file():
-            raise InputError(f"{root}: not a data set of ebr generate; make it with the commands in {PAGE}")
-        ds = GeneratedDataset(root)
-        intensity = float(ds.dataset["config"]["capture"]["flash_intensity"])
-        n = len(ds) if limit <= 0 else min(limit, len(ds))
-        for i in range(n):
-            truth = _truth(ds[i])
-            result = estimate_sample(predictor, root, i, nominal=intensity)
-            truth_renders = metrics.rerenders(truth, pairs, intensity)
-            fit = result.get("flash_fit") or {}
-            pattern = fit.get("roughness_pattern") or {}
-            row = {
-                "data": root.name,
-                "index": i,
-                "material": str(ds.index["samples"][i]["material"]).split("/")[-1],
-                "read": bool(pattern.get("applied")) and fit.get("roughness_from") == "fit",
-                "record": pattern or None,  # estimate.json flash_fit.roughness_pattern
-                "fitted": fit.get("roughness"),
-                "oracle": float(np.std(truth.roughness)),
+    for root, ds, i, intensity in validation_captures(roots, PAGE, limit):
+        truth = _truth(ds[i])
+        result = estimate_sample(predictor, root, i, nominal=intensity)
+        truth_renders = metrics.rerenders(truth, pairs, intensity)
+        fit = result.get("flash_fit") or {}
+        pattern = fit.get("roughness_pattern") or {}
+        row = {
+            "data": root.name,
+            "index": i,
+            "material": str(ds.index["samples"][i]["material"]).split("/")[-1],
+            "read": bool(pattern.get("applied")) and fit.get("roughness_from") == "fit",
+            "record": pattern or None,  # estimate.json flash_fit.roughness_pattern
+            "fitted": fit.get("roughness"),
+            "oracle": float(np.std(truth.roughness)),
+        }
+        base = result.maps
+
+        def scored(rough, name, base=base, truth=truth):
+            maps = SVBRDF(base.normal, base.diffuse, base.specular, rough, source=name)
+            return _at_size(maps, truth.shape)  # the working size may exceed the data set's
+
+        for name, gain in (("constant", 0.0), ("pattern", None)):
+            maps = scored(variant_roughness(result, gain), name)
+            m = metrics.sample_metrics(maps, truth, pairs, intensity, truth_renders)
+            row[name] = {
+                "roughness": m["per_map_rmse"]["roughness"],
+                "mean": m["per_map_rmse"]["mean"],
+                "rerender": m["rerender_rmse"],
             }
-            base = result.maps
-
-            def scored(rough, name, base=base, truth=truth):
-                maps = SVBRDF(base.normal, base.diffuse, base.specular, rough, source=name)
-                return _at_size(maps, truth.shape)  # the working size may exceed the data set's
-
-            for name, gain in (("constant", 0.0), ("pattern", None)):
-                maps = scored(variant_roughness(result, gain), name)
-                m = metrics.sample_metrics(maps, truth, pairs, intensity, truth_renders)
-                row[name] = {
-                    "roughness": m["per_map_rmse"]["roughness"],
-                    "mean": m["per_map_rmse"]["mean"],
-                    "rerender": m["rerender_rmse"],
-                }
-                thumbs[(root.name, i, name)] = resample_svbrdf(maps, THUMB).roughness
-            thumbs[(root.name, i, "truth")] = resample_svbrdf(truth, THUMB).roughness
-            row["gains"] = []
-            for gain in GAINS:
-                per_map = metrics.map_rmse(scored(variant_roughness(result, gain), "gain"), truth)
-                row["gains"].append([gain, per_map["roughness"], per_map["mean"]])
-            rows.append(row)
-            if progress:
-                a, b = row["constant"]["roughness"], row["pattern"]["roughness"]
-                progress(f"{root.name} {i}: {row['material']} roughness RMSE {a:.4f} -> {b:.4f}")
-    groups = {r.name: [x for x in rows if x["data"] == r.name] for r in roots}
-    groups["all"] = rows
-    summary = {name: _summary(group) for name, group in groups.items() if group}
+            thumbs[(root.name, i, name)] = resample_svbrdf(maps, THUMB).roughness
+        thumbs[(root.name, i, "truth")] = resample_svbrdf(truth, THUMB).roughness
+        row["gains"] = []
+        for gain in GAINS:
+            per_map = metrics.map_rmse(scored(variant_roughness(result, gain), "gain"), truth)
+            row["gains"].append([gain, per_map["roughness"], per_map["mean"]])
+        rows.append(row)
+        if progress:
+            a, b = row["constant"]["roughness"], row["pattern"]["roughness"]
+            progress(f"{root.name} {i}: {row['material']} roughness RMSE {a:.4f} -> {b:.4f}")
+    summary = by_data_set(rows, roots, _summary)
     pool = pool_correlations(limit=QUICK_SAMPLES if limit > 0 else 0)
     return {"rows": rows, "summary": summary, "thumbs": thumbs, "pool": pool}
 

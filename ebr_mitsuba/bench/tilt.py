@@ -29,8 +29,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from ._common import machine, measure_validation, validation_note, validation_sets
+from ._common import (
+    by_data_set,
+    machine,
+    measure_validation,
+    validation_captures,
+    validation_note,
+    validation_sets,
+)
 
 PAGE = "tilt.md"
 VARIANTS = ("network", "flat", "tilted")
@@ -68,7 +74,6 @@ def measure(roots: list[Path], limit: int = 0, progress=None) -> dict:
     was applied, each variant's metrics; per data set and over all: the means over the captures
     it was applied to and how often the tilt helped."""
     from .. import metrics
-    from ..data.dataset import GeneratedDataset
     from ..estimate.highlight_tilt import tilted_normals
     from ..evaluation.evaluate import _at_size, _truth, estimate_sample
     from ..model.predict import load_predictor
@@ -77,59 +82,51 @@ def measure(roots: list[Path], limit: int = 0, progress=None) -> dict:
     predictor = load_predictor(None)
     pairs = metrics.rerender_pairs(0)
     rows, crops = [], {}
-    for root in roots:
-        if not (root / "dataset.json").is_file():
-            raise InputError(f"{root}: not a data set of ebr generate; make it with the commands in {PAGE}")
-        ds = GeneratedDataset(root)
-        intensity = float(ds.dataset["config"]["capture"]["flash_intensity"])
-        n = len(ds) if limit <= 0 else min(limit, len(ds))
-        for i in range(n):
-            result = estimate_sample(predictor, root, i, nominal=intensity)
-            record = result.get("highlight_tilt")
-            if record is None:  # the shading normals applied: the tilt is not read
-                continue
-            item = ds[i]
-            truth = _truth(item)
-            row = {
-                "data": root.name,
-                "index": i,
-                "material": str(ds.index["samples"][i]["material"]).split("/")[-1],
-                "record": record,
-                "true_slope": [float(v) for v in true_slope(truth.normal)],
+    for root, ds, i, intensity in validation_captures(roots, PAGE, limit):
+        result = estimate_sample(predictor, root, i, nominal=intensity)
+        record = result.get("highlight_tilt")
+        if record is None:  # the shading normals applied: the tilt is not read
+            continue
+        item = ds[i]
+        truth = _truth(item)
+        row = {
+            "data": root.name,
+            "index": i,
+            "material": str(ds.index["samples"][i]["material"]).split("/")[-1],
+            "record": record,
+            "true_slope": [float(v) for v in true_slope(truth.normal)],
+        }
+        if record["applied"]:
+            network = estimate_sample(
+                predictor, root, i, nominal=intensity, options={"highlight_tilt": False}
+            )
+            truth_renders = metrics.rerenders(truth, pairs, intensity)
+            base = _at_size(result.maps, truth.shape)
+            shape = truth.shape
+            normals = {
+                "network": np.asarray(_at_size(network.maps, shape).normal),
+                "flat": tilted_normals(shape, (0.0, 0.0)),
+                "tilted": np.asarray(base.normal),
             }
-            if record["applied"]:
-                network = estimate_sample(
-                    predictor, root, i, nominal=intensity, options={"highlight_tilt": False}
-                )
-                truth_renders = metrics.rerenders(truth, pairs, intensity)
-                base = _at_size(result.maps, truth.shape)
-                shape = truth.shape
-                normals = {
-                    "network": np.asarray(_at_size(network.maps, shape).normal),
-                    "flat": tilted_normals(shape, (0.0, 0.0)),
-                    "tilted": np.asarray(base.normal),
+            for name, normal in normals.items():
+                maps = SVBRDF(normal, base.diffuse, base.specular, base.roughness, source=name)
+                m = metrics.sample_metrics(maps, truth, pairs, intensity, truth_renders)
+                row[name] = {
+                    "normal": m["per_map_rmse"]["normal"],
+                    "mean": m["per_map_rmse"]["mean"],
+                    "rerender": m["rerender_rmse"],
                 }
-                for name, normal in normals.items():
-                    maps = SVBRDF(normal, base.diffuse, base.specular, base.roughness, source=name)
-                    m = metrics.sample_metrics(maps, truth, pairs, intensity, truth_renders)
-                    row[name] = {
-                        "normal": m["per_map_rmse"]["normal"],
-                        "mean": m["per_map_rmse"]["mean"],
-                        "rerender": m["rerender_rmse"],
-                    }
-                flash = item["photos"][ds.shot_names.index("flash")].permute(1, 2, 0).numpy()
-                crops[(root.name, i)] = _crop(flash)
-            rows.append(row)
-            if progress:
-                what = (
-                    f"re-render {row['network']['rerender']:.4f} -> {row['tilted']['rerender']:.4f}"
-                    if record["applied"]
-                    else record.get("reason", "not applied")
-                )
-                progress(f"{root.name} {i}: {row['material']} {what}")
-    groups = {r.name: [x for x in rows if x["data"] == r.name] for r in roots}
-    groups["all"] = rows
-    summary = {name: _summary(group) for name, group in groups.items() if group}
+            flash = item["photos"][ds.shot_names.index("flash")].permute(1, 2, 0).numpy()
+            crops[(root.name, i)] = _crop(flash)
+        rows.append(row)
+        if progress:
+            what = (
+                f"re-render {row['network']['rerender']:.4f} -> {row['tilted']['rerender']:.4f}"
+                if record["applied"]
+                else record.get("reason", "not applied")
+            )
+            progress(f"{root.name} {i}: {row['material']} {what}")
+    summary = by_data_set(rows, roots, _summary)
     return {"rows": rows, "summary": summary, "crops": crops}
 
 
