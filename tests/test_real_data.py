@@ -224,3 +224,39 @@ def test_truth_but_replaces_only_the_named_maps_by_their_means():
     )
     with pytest.raises(InputError, match="unknown map"):
         truth_but(truth, ("albedo",))
+
+
+def test_truth_roughness_diagnostics_keep_the_stated_part_of_the_pattern():
+    from ebr_mitsuba.errors import InputError
+    from ebr_mitsuba.evaluation.baselines import (
+        oracle_constant,
+        truth_roughness_from_albedo,
+        truth_roughness_scaled,
+    )
+    from ebr_mitsuba.metrics import map_rmse
+    from ebr_mitsuba.svbrdf import SVBRDF
+
+    rng = np.random.default_rng(5)
+    h = w = 16
+    n = np.dstack([np.zeros((h, w, 2)), np.ones((h, w))])
+    albedo = rng.uniform(0.05, 0.8, (h, w, 3))
+    u = np.log(albedo.mean(-1) + 1e-3)
+    follows = 0.5 - 0.1 * (u - u.mean())  # a roughness that is a line in the log albedo
+    noise = rng.normal(0, 0.05, (h, w))  # ... plus a pattern the albedo does not show
+    truth = SVBRDF(n, albedo, np.full((h, w, 3), 0.04), np.clip(follows + noise, 0.05, 1))
+    exact = SVBRDF(n, albedo, np.full((h, w, 3), 0.04), follows)
+    # an albedo-following roughness is recovered exactly; the rest of a pattern is lost
+    np.testing.assert_allclose(truth_roughness_from_albedo(exact).roughness, follows, atol=1e-5)
+    err = map_rmse(truth_roughness_from_albedo(truth), truth)["roughness"]
+    assert abs(err - float(np.std(truth.roughness - follows))) < 0.01
+    assert err < map_rmse(oracle_constant(truth), truth)["roughness"]
+    # the scaled pattern: 0 is the constant mean, 1 the truth, ½ half the constant's error
+    const_err = map_rmse(oracle_constant(truth), truth)["roughness"]
+    np.testing.assert_allclose(truth_roughness_scaled(truth, 1.0).roughness, truth.roughness, atol=1e-6)
+    for gain in (0.0, 0.5):
+        scaled = truth_roughness_scaled(truth, gain)
+        got = map_rmse(scaled, truth)
+        np.testing.assert_allclose(got["roughness"], (1 - gain) * const_err, rtol=1e-4)
+        assert got["diffuse"] < 1e-6 and got["normal"] < 1e-6
+    with pytest.raises(InputError, match="outside"):
+        truth_roughness_scaled(truth, 1.5)

@@ -3,7 +3,9 @@
 * :class:`MeanMaps` — baseline (a): every sample gets the training set's per-pixel mean maps
   (normals averaged as vectors and renormalised), whatever the photos show.
 * :func:`truth_but` — a diagnostic, not a baseline: the ground truth with some maps replaced by
-  their constant means (what one map's spatial structure is worth to a metric).
+  their constant means (what one map's spatial structure is worth to a metric);
+  :func:`truth_roughness_from_albedo` and :func:`truth_roughness_scaled`, the same with the
+  roughness map's structure partly kept (what a roughness pattern must get right to pay off).
 * :func:`oracle_constant` — the "oracle constant" of the evaluation protocol
   (``docs/conventions.md``, "Metrics"): each test sample gets its *own* ground truth's spatial
   mean, one value per map (normals averaged as vectors and renormalised). No estimator can know
@@ -97,4 +99,40 @@ def truth_but(truth: SVBRDF, keys: tuple[str, ...]) -> SVBRDF:
     return SVBRDF(**pick, source=f"{truth.source}, constant {' '.join(keys)}")
 
 
-__all__ = ["MeanMaps", "oracle_constant", "truth_but"]
+def truth_roughness_from_albedo(truth: SVBRDF) -> SVBRDF:
+    """``truth`` with its roughness map replaced by its least-squares line in the log grey albedo
+    (``a + b · log(mean diffuse + 1e-3)`` over the pixels, clipped to [ROUGHNESS_MIN, 1]): the best
+    roughness pattern that follows the albedo, which a capture can read off its texture. A
+    diagnostic (``docs/models.md``, "What the re-render figure measures")."""
+    from ..floors import ROUGHNESS_MIN
+
+    r = truth.roughness.astype(np.float64)
+    u = np.log(truth.diffuse.astype(np.float64).mean(axis=-1) + 1e-3).reshape(-1)
+    basis = np.stack([np.ones_like(u), u - u.mean()], axis=1)
+    coef, *_ = np.linalg.lstsq(basis, r.reshape(-1), rcond=None)
+    rough = (basis @ coef).reshape(r.shape).clip(ROUGHNESS_MIN, 1.0).astype(np.float32)
+    return _with_roughness(truth, rough, "roughness regressed on the albedo")
+
+
+def truth_roughness_scaled(truth: SVBRDF, gain: float) -> SVBRDF:
+    """``truth`` with its roughness map's deviations from its mean times ``gain`` (0: the constant
+    mean, 1: the truth): the true pattern at part of its amplitude, a diagnostic of how much of it
+    an estimate must recover."""
+    if not 0.0 <= gain <= 1.0:
+        raise InputError(f"truth_roughness_scaled: gain {gain} outside [0, 1]")
+    r = truth.roughness.astype(np.float64)
+    rough = (r.mean() + gain * (r - r.mean())).astype(np.float32)
+    return _with_roughness(truth, rough, f"roughness pattern × {gain:g}")
+
+
+def _with_roughness(truth: SVBRDF, rough: np.ndarray, what: str) -> SVBRDF:
+    return SVBRDF(truth.normal, truth.diffuse, truth.specular, rough, source=f"{truth.source}, {what}")
+
+
+__all__ = [
+    "MeanMaps",
+    "oracle_constant",
+    "truth_but",
+    "truth_roughness_from_albedo",
+    "truth_roughness_scaled",
+]

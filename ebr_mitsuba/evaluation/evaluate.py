@@ -276,12 +276,10 @@ def oracle_predictor(item: dict, names: list[str]) -> SVBRDF:
     return oracle_constant(_truth(item))
 
 
-def truth_but_predictor(keys: tuple[str, ...]) -> Callable[[dict, list[str]], SVBRDF]:
-    """Diagnostic: each sample's ground truth with the maps ``keys`` replaced by their constant
-    means (:func:`.baselines.truth_but`)."""
-    from .baselines import truth_but
-
-    return lambda item, names: truth_but(_truth(item), tuple(keys))
+def truth_predictor(transform: Callable[[SVBRDF], SVBRDF]) -> Callable[[dict, list[str]], SVBRDF]:
+    """Diagnostic: each sample's ground truth passed through ``transform`` (e.g.
+    :func:`.baselines.truth_but`: some maps replaced by their constant means)."""
+    return lambda item, names: transform(_truth(item))
 
 
 __all__ = [
@@ -293,5 +291,5 @@ __all__ = [
     "material_group",
     "model_predictor",
     "oracle_predictor",
-    "truth_but_predictor",
+    "truth_predictor",
 ]
