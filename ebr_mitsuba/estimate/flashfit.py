@@ -429,7 +429,17 @@ bright pixels clip, a wallpaper 0.65 → 0.745–0.825 for 0.657: RMS error of t
 its highlight (:mod:`.highlight_tilt`), a roughness 0.03 lower would take three of its four test
 captures' held-out re-render from 3.83–3.86 to 2.90–3.23. The spread of the roughness is what is
 missing; in the tail each pixel's lobe is proportional to its own α², so the ring-wise spread of
-the flash-only residual could read it (not tried).
+the flash-only residual could read it. Tried (2026-12-08) on the validation captures: per pixel of
+the tail (unsaturated, not next to a clipped pixel, the fitted lobe over twice the diffuse level
+and past twice α from the mirror point) the ratio q = specular residual / fitted lobe is (r(x) /
+r)⁴, so the spread of q beyond the photo noise, read as a log-normal, gives the mean roughness
+as r · exp(−3σ²/32). Only 2 of the 96 captures of the three validation sets have such a tail
+(at 256² a roughness above about 0.15 has none outside the clipped disc): a glossy facade read
+0.123 → 0.110 for a truth of 0.057, with the fitted lobe four times the tail's mean (the model
+does not hold there), a glazed tile set 0.060 → 0.057 for 0.088. Too few captures to choose
+anything, so not adopted; and one glazed tile set's mean would not meet the re-render acceptance
+anyway (``docs/models.md``, "What the re-render figure measures": it needs the roughness pattern,
+not its mean).
 
 Tried and dropped (2026-12-08), on the metal captures of the validation sets (a polished copper,
 acg_Metal034, three times; acg_Metal055A; five procedural metals), judged by ``ebr estimate``'s
