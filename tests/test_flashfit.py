@@ -459,6 +459,14 @@ def test_pixel_median_reading_resists_a_minority_of_glints():
         want = weight * median["roughness"] + (1.0 - weight) * median["profile"]
         assert weighted.roughness == pytest.approx(want, abs=1e-3), weight
         assert weighted.pixel_median == median
+    # where the two readings differ by more than FlashFitConfig.median_alone, the median's alone
+    gap = abs(median["roughness"] - median["profile"])
+    assert gap > 0.01
+    for limit, want in ((gap / 2, median["roughness"]), (min(2 * gap, 1.0), fit.roughness)):
+        gated = fit_flash(
+            flash, noflash, to_radiance=1 / exposure, options=FlashFitConfig(median_alone=limit)
+        )
+        assert gated.roughness == pytest.approx(want, abs=1e-3), limit
 
 
 def test_pixel_median_reading_not_used_for_a_lobe_it_cannot_resolve():
