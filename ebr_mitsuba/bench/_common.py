@@ -152,6 +152,17 @@ def by_data_set(rows: list[dict], roots: list[Path], summarise) -> dict:
     return {name: summarise(group) for name, group in groups.items() if group}
 
 
+def variant_score(maps, truth, key: str, pairs, intensity: float, truth_renders) -> dict:
+    """One estimate variant scored as ``ebr bench models`` scores it: ``{key: that map's RMSE,
+    "mean": the mean per-map RMSE, "rerender": the held-out-light re-render RMSE}`` (``maps`` at the
+    truth's size; ``pairs``, ``truth_renders``: :func:`ebr_mitsuba.metrics.rerender_pairs` and the
+    truth's :func:`~ebr_mitsuba.metrics.rerenders` under them)."""
+    from .. import metrics
+
+    m = metrics.sample_metrics(maps, truth, pairs, intensity, truth_renders)
+    return {key: m["per_map_rmse"][key], "mean": m["per_map_rmse"]["mean"], "rerender": m["rerender_rmse"]}
+
+
 def thumbnail_grid(rows: list[dict], columns, image, title, path: Path, **imshow) -> None:
     """A picture of one row of thumbnails per entry of ``rows`` (labelled with its ``material``) and
     one column per name in ``columns``: ``image(row, column)`` drawn with the ``imshow`` options,

@@ -45,6 +45,7 @@ from ._common import (
     validation_captures,
     validation_note,
     validation_sets,
+    variant_score,
 )
 
 PAGE = "normals.md"
@@ -125,13 +126,8 @@ def measure(roots: list[Path], limit: int = 0, progress=None) -> dict:
         for name, normal in variant_normals(result).items():
             maps = SVBRDF(normal, base.diffuse, base.specular, base.roughness, source=name)
             maps = _at_size(maps, truth.shape)  # the working size may exceed the data set's
-            m = metrics.sample_metrics(maps, truth, pairs, intensity, truth_renders)
-            row[name] = {
-                "normal": m["per_map_rmse"]["normal"],
-                "mean": float(np.mean(list(m["per_map_rmse"].values()))),
-                "rerender": m["rerender_rmse"],
-                "spread": min(spread(maps.normal) / max(spread(truth.normal), 1e-6), 1.0),
-            }
+            row[name] = variant_score(maps, truth, "normal", pairs, intensity, truth_renders)
+            row[name]["spread"] = min(spread(maps.normal) / max(spread(truth.normal), 1e-6), 1.0)
             thumbs[(root.name, i, name)] = resample_svbrdf(maps, THUMB).normal
         thumbs[(root.name, i, "truth")] = resample_svbrdf(truth, THUMB).normal
         row["gains"] = _gain_grid(result, truth)

@@ -38,6 +38,7 @@ from ._common import (
     validation_captures,
     validation_note,
     validation_sets,
+    variant_score,
 )
 
 PAGE = "roughness.md"
@@ -136,12 +137,7 @@ def measure(roots: list[Path], limit: int = 0, progress=None) -> dict:
 
         for name, gain in (("constant", 0.0), ("pattern", None)):
             maps = scored(variant_roughness(result, gain), name)
-            m = metrics.sample_metrics(maps, truth, pairs, intensity, truth_renders)
-            row[name] = {
-                "roughness": m["per_map_rmse"]["roughness"],
-                "mean": m["per_map_rmse"]["mean"],
-                "rerender": m["rerender_rmse"],
-            }
+            row[name] = variant_score(maps, truth, "roughness", pairs, intensity, truth_renders)
             thumbs[(root.name, i, name)] = resample_svbrdf(maps, THUMB).roughness
         thumbs[(root.name, i, "truth")] = resample_svbrdf(truth, THUMB).roughness
         row["gains"] = []

@@ -36,6 +36,7 @@ from ._common import (
     validation_captures,
     validation_note,
     validation_sets,
+    variant_score,
 )
 
 PAGE = "tilt.md"
@@ -110,12 +111,7 @@ def measure(roots: list[Path], limit: int = 0, progress=None) -> dict:
             }
             for name, normal in normals.items():
                 maps = SVBRDF(normal, base.diffuse, base.specular, base.roughness, source=name)
-                m = metrics.sample_metrics(maps, truth, pairs, intensity, truth_renders)
-                row[name] = {
-                    "normal": m["per_map_rmse"]["normal"],
-                    "mean": m["per_map_rmse"]["mean"],
-                    "rerender": m["rerender_rmse"],
-                }
+                row[name] = variant_score(maps, truth, "normal", pairs, intensity, truth_renders)
             flash = item["photos"][ds.shot_names.index("flash")].permute(1, 2, 0).numpy()
             crops[(root.name, i)] = _crop(flash)
         rows.append(row)
